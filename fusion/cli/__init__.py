@@ -1,0 +1,65 @@
+"""``vifusion`` command line: a thin layer, one module per subcommand.
+
+Each subcommand module has ``add_parser(subparsers)`` and ``run(args) -> int``. Errors that the
+user can fix (bad input, bad config) are printed as one line ``error: ...`` with exit status 2;
+``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from imu.errors import ImuError
+from vision.errors import VisionError
+
+from ..errors import FusionError
+
+__all__ = ["main", "USER_ERRORS"]
+
+#: Subcommands, in the order ``vifusion --help`` lists them.
+SUBCOMMANDS = ("run", "vision", "can", "simulate")
+
+#: Exceptions that mean bad input rather than a bug: reported in one line, exit status 2.
+USER_ERRORS = (FusionError, ImuError, VisionError, FileNotFoundError, PermissionError, IsADirectoryError)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="vifusion",
+        description="Vehicle attitude and road bank angle from a camera fused with a CAN-bus IMU.",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in SUBCOMMANDS:
+        try:
+            module = importlib.import_module(f".{name}", __name__)
+        except ModuleNotFoundError as e:
+            if e.name and e.name.startswith(f"{__name__}.{name}"):
+                continue  # subcommand not built yet
+            raise
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except USER_ERRORS as e:
+        if args.debug:
+            raise
+        print(f"error: {_one_line(e)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+
+
+def _one_line(e: BaseException) -> str:
+    text = str(e) if not isinstance(e, OSError) or not e.filename else f"{e.filename}: {e.strerror}"
+    return " ".join(text.split()) or type(e).__name__

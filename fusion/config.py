@@ -1,0 +1,250 @@
+"""Config files (TOML, INTERFACE.md): read, checked key by key, turned into frozen dataclasses.
+
+Every error names the file, the table and the key, and says what was expected, e.g.
+``config.toml: [camera] fx must be a number, got 'abc'``.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from imu.config import CanMapping, ImuMount
+from imu.errors import ImuError
+from vision.camera import Camera, Mount, RoadMarkings
+from vision.errors import VisionError
+
+from .errors import ConfigError
+
+__all__ = ["DriveConfig", "VideoTiming", "Table", "load_config", "read_toml", "parse_config"]
+
+
+@dataclass(frozen=True)
+class VideoTiming:
+    """Frame times when there is no ``frames.csv``: ``t = start_s + frame / fps``."""
+
+    fps: float = 30.0
+    start_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    """Everything a config file describes."""
+
+    camera: Camera
+    mount: Mount
+    road: RoadMarkings
+    imu: ImuMount
+    can: CanMapping | None
+    video: VideoTiming
+    #: Free-form tables that other modules read with their own checks (``[vision]``, ``[fusion]``).
+    extra: dict[str, dict] = field(default_factory=dict)
+    path: Path | None = None
+
+
+def read_toml(path: str | Path) -> dict:
+    """Parse a TOML file; a missing file or bad syntax is a one-line :class:`ConfigError`."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, expected a TOML file") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+
+
+class Table:
+    """Typed access to one TOML table that remembers which keys were read.
+
+    ``get`` checks the type and range and raises :class:`ConfigError` naming the key;
+    ``done`` rejects keys nobody read (typos such as ``heigth_m``).
+    """
+
+    def __init__(self, data: dict, name: str, source: str) -> None:
+        if not isinstance(data, dict):
+            raise ConfigError(f"{source}: [{name}] must be a table, got {type(data).__name__}")
+        self.data, self.name, self.source = data, name, source
+        self._read: set[str] = set()
+
+    def where(self, key: str) -> str:
+        return f"{self.source}: [{self.name}] {key}"
+
+    def error(self, key: str, msg: str) -> ConfigError:
+        return ConfigError(f"{self.where(key)} {msg}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def get(self, key: str, kind: str, default: Any = ..., *, min: float | None = None,
+            max: float | None = None, choices: tuple | None = None, length: int | None = None) -> Any:
+        """Read ``key`` as ``kind`` in {"float", "int", "bool", "str", "floats", "strs", "table"}."""
+        self._read.add(key)
+        if key not in self.data:
+            if default is ...:
+                raise self.error(key, f"is missing (expected {_KIND_TEXT[kind]})")
+            return default
+        value = _convert(self.data[key], kind)
+        if value is None:
+            raise self.error(key, f"must be {_KIND_TEXT[kind]}, got {self.data[key]!r}")
+        if length is not None and len(value) != length:
+            raise self.error(key, f"needs {length} entries, got {len(value)}")
+        for v in value if kind == "floats" else [value] if kind in ("float", "int") else []:
+            if min is not None and v < min or max is not None and v > max:
+                rng = f">= {min}" if max is None else f"<= {max}" if min is None else f"within [{min}, {max}]"
+                raise self.error(key, f"must be {rng}, got {v!r}")
+        if choices is not None and value not in choices:
+            raise self.error(key, f"must be one of {', '.join(map(repr, choices))}, got {value!r}")
+        return value
+
+    def sub(self, key: str, required: bool = False) -> "Table":
+        """A nested table (``[can.signals]``)."""
+        self._read.add(key)
+        if key not in self.data and not required:
+            return Table({}, f"{self.name}.{key}", self.source)
+        if key not in self.data:
+            raise self.error(key, "is missing (expected a table)")
+        return Table(self.data[key], f"{self.name}.{key}", self.source)
+
+    def done(self) -> None:
+        unknown = sorted(set(self.data) - self._read)
+        if unknown:
+            raise self.error(unknown[0], f"is not a known key (known: {', '.join(sorted(self._read)) or 'none'})")
+
+
+_KIND_TEXT = {
+    "float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
+    "floats": "a list of numbers", "strs": "a list of strings", "table": "a table",
+}
+
+
+def _convert(v: Any, kind: str) -> Any:
+    if kind == "float":
+        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) else None
+    if kind == "int":
+        return v if isinstance(v, int) and not isinstance(v, bool) else None
+    if kind == "bool":
+        return v if isinstance(v, bool) else None
+    if kind == "str":
+        return v if isinstance(v, str) else None
+    if kind == "floats":
+        if isinstance(v, list) and all(_convert(x, "float") is not None for x in v):
+            return tuple(float(x) for x in v)
+        return None
+    if kind == "strs":
+        return tuple(v) if isinstance(v, list) and all(isinstance(x, str) for x in v) else None
+    if kind == "table":
+        return v if isinstance(v, dict) else None
+    raise ValueError(kind)
+
+
+def _build(source: str, what: str, make: Callable[[], Any]) -> Any:
+    """Run a dataclass constructor, turning its own range checks into ConfigErrors."""
+    try:
+        return make()
+    except (VisionError, ImuError) as e:
+        raise ConfigError(f"{source}: [{what}] {e}") from None
+
+
+def parse_camera(t: Table) -> Camera:
+    width = t.get("width", "int", min=1)
+    height = t.get("height", "int", min=1)
+    if t.has("hfov_deg") and not t.has("fx"):
+        hfov = t.get("hfov_deg", "float", min=1.0, max=179.0)
+        dist = t.get("distortion", "floats", (0.0,) * 5)
+        t.done()
+        return _build(t.source, "camera", lambda: Camera.from_fov(width, height, hfov, distortion=dist))
+    fx = t.get("fx", "float", min=1e-9)
+    fy = t.get("fy", "float", fx, min=1e-9)
+    cx = t.get("cx", "float", (width - 1) / 2.0)
+    cy = t.get("cy", "float", (height - 1) / 2.0)
+    dist = t.get("distortion", "floats", (0.0,) * 5)
+    t.done()
+    return _build(t.source, "camera", lambda: Camera(width, height, fx, fy, cx, cy, dist))
+
+
+def parse_mount(t: Table) -> Mount:
+    h = t.get("height_m", "float", min=1e-3)
+    tilt = t.get("tilt_deg", "float", min=-89.0, max=89.0)
+    x = t.get("x_m", "float", 0.0)
+    t.done()
+    return _build(t.source, "mount", lambda: Mount(h, math.radians(tilt), x))
+
+
+def parse_road(t: Table) -> RoadMarkings:
+    lane = t.get("lane_width_m", "float", 3.5, min=0.5, max=10.0)
+    marker = t.get("marker_width_m", "float", 0.15, min=0.01, max=1.0)
+    center = t.get("center_line", "bool", True)
+    widths = t.get("marker_widths_m", "floats", None, length=3)
+    t.done()
+    return _build(t.source, "road", lambda: RoadMarkings(lane, marker, center, widths))
+
+
+def parse_imu(t: Table) -> ImuMount:
+    axes = t.get("axes", "strs", ("x", "y", "z"), length=3)
+    pos = t.get("position_m", "floats", (0.0, 0.0, 0.0), length=3)
+    t.done()
+    return _build(t.source, "imu", lambda: ImuMount(axes, pos))
+
+
+def parse_can(t: Table, base_dir: Path) -> CanMapping | None:
+    if not t.data:
+        return None
+    dbc = t.get("dbc", "str")
+    gap = t.get("gap_limit_s", "float", 0.1, min=1e-6)
+    signals_t = t.sub("signals", required=True)
+    signals = {k: signals_t.get(k, "str") for k in list(signals_t.data)}
+    units_t = t.sub("units")
+    units = {k: units_t.get(k, "str") for k in list(units_t.data)}
+    t.done()
+    dbc_path = Path(dbc) if Path(dbc).is_absolute() else base_dir / dbc
+    return _build(t.source, "can", lambda: CanMapping(dbc_path, signals, units, gap))
+
+
+def parse_video(t: Table) -> VideoTiming:
+    fps = t.get("fps", "float", 30.0, min=1e-3)
+    start = t.get("start_s", "float", 0.0)
+    t.done()
+    return VideoTiming(fps, start)
+
+
+#: Tables whose keys are checked by other modules (``vision.options``, ``fusion.ekf``).
+FREE_TABLES = ("vision", "fusion", "report")
+
+
+def parse_config(data: dict, source: str, base_dir: Path) -> DriveConfig:
+    """Build a :class:`DriveConfig` from parsed TOML; ``source`` names the file in errors."""
+    known = {"camera", "mount", "road", "imu", "can", "video", *FREE_TABLES}
+    for name in data:
+        if name not in known:
+            raise ConfigError(f"{source}: [{name}] is not a known table (known: {', '.join(sorted(known))})")
+    for name in ("camera", "mount"):
+        if name not in data:
+            raise ConfigError(f"{source}: [{name}] is missing")
+
+    def table(name: str) -> Table:
+        return Table(data.get(name, {}), name, source)
+
+    return DriveConfig(
+        camera=parse_camera(table("camera")),
+        mount=parse_mount(table("mount")),
+        road=parse_road(table("road")),
+        imu=parse_imu(table("imu")),
+        can=parse_can(table("can"), base_dir),
+        video=parse_video(table("video")),
+        extra={k: dict(data[k]) for k in FREE_TABLES if k in data},
+        path=None,
+    )
+
+
+def load_config(path: str | Path) -> DriveConfig:
+    """Read and check a config TOML; relative paths in it are relative to the file."""
+    path = Path(path)
+    cfg = parse_config(read_toml(path), str(path), path.parent)
+    object.__setattr__(cfg, "path", path)
+    return cfg

@@ -1,0 +1,88 @@
+"""How the IMU sits in the vehicle and how its channels are found on the CAN bus."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
+
+import numpy as np
+
+from .errors import ImuConfigError
+
+__all__ = ["CHANNELS", "GYRO", "ACCEL", "ImuMount", "CanMapping"]
+
+GYRO = ("gyro_x", "gyro_y", "gyro_z")
+ACCEL = ("accel_x", "accel_y", "accel_z")
+#: IMU channels that ``[can.signals]`` may map, in the IMU's own axes (speed has none).
+CHANNELS = GYRO + ACCEL + ("speed",)
+
+_AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
+
+
+@dataclass(frozen=True)
+class ImuMount:
+    """IMU axes and lever arm.
+
+    ``axes[i]`` names the IMU axis, with sign, that points along vehicle axis i: the contract's
+    ``["x", "-y", "-z"]`` is an FRD-mounted IMU (vehicle y = -IMU y, vehicle z = -IMU z).
+    ``position_m`` is the IMU origin in the vehicle frame, m.
+    """
+
+    axes: tuple[str, str, str] = ("x", "y", "z")
+    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        axes = tuple(str(a).strip().lower() for a in self.axes)
+        if len(axes) != 3:
+            raise ImuConfigError(f"[imu] axes needs three entries, got {list(self.axes)}")
+        names = [a.lstrip("+-") for a in axes]
+        if sorted(names) != ["x", "y", "z"] or any(len(a) - len(n) > 1 for a, n in zip(axes, names)):
+            raise ImuConfigError(
+                f'[imu] axes must be a signed permutation of "x", "y", "z", got {list(self.axes)}'
+            )
+        object.__setattr__(self, "axes", axes)
+        if abs(np.linalg.det(self.R_v_from_imu) - 1.0) > 1e-9:
+            raise ImuConfigError(f"[imu] axes {list(self.axes)} is a reflection, not a rotation")
+        p = tuple(float(x) for x in self.position_m)
+        if len(p) != 3:
+            raise ImuConfigError(f"[imu] position_m needs three numbers, got {list(self.position_m)}")
+        object.__setattr__(self, "position_m", p)
+
+    @property
+    def R_v_from_imu(self) -> np.ndarray:
+        """Signed permutation taking IMU-axis vectors to vehicle-frame vectors."""
+        R = np.zeros((3, 3))
+        for i, a in enumerate(self.axes):
+            R[i, _AXIS_INDEX[a[-1]]] = -1.0 if a.startswith("-") else 1.0
+        return R
+
+
+@dataclass(frozen=True)
+class CanMapping:
+    """Where each IMU channel lives on the bus.
+
+    ``signals`` maps channel names of :data:`CHANNELS` to ``"MESSAGE.SIGNAL"``; ``units``
+    overrides the DBC unit string per channel; gaps longer than ``gap_limit_s`` are reported
+    and never interpolated across.
+    """
+
+    dbc_path: Path
+    signals: Mapping[str, str]
+    units: Mapping[str, str] = field(default_factory=dict)
+    gap_limit_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        for ch, ref in self.signals.items():
+            if ch not in CHANNELS:
+                raise ImuConfigError(f"[can.signals] {ch}: unknown channel, expected one of {', '.join(CHANNELS)}")
+            if not isinstance(ref, str) or ref.count(".") != 1 or ref.startswith(".") or ref.endswith("."):
+                raise ImuConfigError(f'[can.signals] {ch} must be "MESSAGE.SIGNAL", got {ref!r}')
+        for ch in self.units:
+            if ch not in self.signals:
+                raise ImuConfigError(f"[can.units] {ch}: no such mapped channel")
+        if not self.gap_limit_s > 0:
+            raise ImuConfigError(f"[can] gap_limit_s must be > 0, got {self.gap_limit_s}")
+        object.__setattr__(self, "signals", MappingProxyType(dict(self.signals)))
+        object.__setattr__(self, "units", MappingProxyType(dict(self.units)))
