@@ -1,0 +1,197 @@
+"""Write one simulated drive to disk in the contract's format (INTERFACE.md).
+
+Files in the output folder:
+
+* ``video.mp4`` (codec mp4v; ``video.avi`` for ffv1/mjpg; ``video/`` PNG frames for png);
+* ``frames.csv``: ``frame,t_s`` in the CAN log's clock (plus ``[video] camera_time_offset_s``,
+  the simulated synchronisation error);
+* ``can.<format>`` and the DBC, ``config.toml``;
+* ``truth.csv`` at ``[truth] rate_hz``: the contract's columns plus extras
+  (``yaw_world_deg``, ``road_pitch_deg``, ``station_m``, ``lateral_offset_m``, ``speed_m_s``,
+  ``curvature_1_m``), in the log clock;
+* ``truth_frames.csv``: the same per video frame, with ``frame`` and the true capture time;
+* ``imu_truth.csv``: true angular rate and specific force (vehicle frame, at the IMU) and the
+  biases, at the IMU's sample times in the log clock;
+* ``scenario.toml``: the scenario it came from; ``preview.png``: the first frame.
+
+The folder is written as ``<out>.partial`` and renamed when complete, so an interrupted run
+never leaves a drive that looks whole.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from fusion.errors import InputError
+
+from .imu_model import simulate_imu
+from .render import Renderer
+from .road import Road, Segment
+from .scenario import Scenario
+from .trajectory import Trajectory
+
+__all__ = ["DriveFiles", "build_road", "simulate", "truth_frame"]
+
+VIDEO_NAMES = {"mp4v": "video.mp4", "ffv1": "video.avi", "mjpg": "video.avi", "png": "video"}
+
+
+@dataclass(frozen=True)
+class DriveFiles:
+    """Paths of a written drive."""
+
+    root: Path
+    video: Path
+    frames: Path
+    can_log: Path
+    dbc: Path
+    config: Path
+    truth: Path
+    truth_frames: Path
+    imu_truth: Path
+
+    @classmethod
+    def in_dir(cls, root: Path, codec: str = "mp4v", can_format: str = "asc", dbc_name: str = "vifusion_imu.dbc"):
+        root = Path(root)
+        return cls(root, root / VIDEO_NAMES[codec], root / "frames.csv", root / f"can.{can_format}",
+                   root / dbc_name, root / "config.toml", root / "truth.csv",
+                   root / "truth_frames.csv", root / "imu_truth.csv")
+
+
+def build_road(scenario: Scenario) -> Road:
+    """The scenario's road, extended with its last curvature, bank and grade so that the
+    camera sees road up to ``max_distance_m`` beyond where the drive ends."""
+    m = scenario.motion
+    v_max = max([m.speed_kmh] + [k[1] for k in m.speed_profile]) / 3.6
+    need = m.start_station_m + v_max * scenario.duration_s * 1.1 + scenario.look.max_distance_m + 50.0
+    segs = list(scenario.segments)
+    total = sum(s.length_m for s in segs)
+    if total < need:
+        last = segs[-1]
+        segs.append(Segment(need - total, last.curvature_1_m, last.bank_deg, last.grade_pct))
+    c, b, g = scenario.start
+    return Road(segs, c, b, g)
+
+
+def truth_frame(traj: Trajectory, t_drive_s: np.ndarray, t_clock_s: np.ndarray) -> pd.DataFrame:
+    """Truth table: angles in degrees with the contract's names, extras in SI units."""
+    tr = traj.truth(t_drive_s)
+    df = pd.DataFrame({"t_s": t_clock_s})
+    for k in ("roll", "pitch", "yaw", "bank", "roll_world", "pitch_world", "yaw_world", "road_pitch"):
+        df[f"{k}_deg"] = np.degrees(tr[k])
+    for k in ("station_m", "lateral_offset_m", "speed_m_s", "curvature_1_m"):
+        df[k] = tr[k]
+    return df
+
+
+def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps: float, start_s: float) -> str:
+    c, mnt, mk, imu = scenario.camera, scenario.mount, scenario.markings, scenario.imu
+    lines = [
+        f"# Written by vifusion simulate from scenario {scenario.name!r}.",
+        "[camera]",
+        f"width = {c.width}", f"height = {c.height}",
+        f"fx = {c.fx!r}", f"fy = {c.fy!r}", f"cx = {c.cx!r}", f"cy = {c.cy!r}",
+        f"distortion = [{', '.join(repr(float(x)) for x in c.distortion)}]",
+        "", "[mount]",
+        f"height_m = {mnt.height_m!r}", f"tilt_deg = {math.degrees(mnt.tilt_rad)!r}",
+    ]
+    if mnt.x_m:
+        lines.append(f"x_m = {mnt.x_m!r}")
+    lines += ["", "[road]", f"lane_width_m = {mk.lane_width_m!r}", f"marker_width_m = {mk.widths_m[2]!r}",
+              f"center_line = {'true' if mk.center_line else 'false'}"]
+    if len(set(mk.widths_m)) > 1:
+        lines.append(f"marker_widths_m = [{', '.join(repr(w) for w in mk.widths_m)}]")
+    lines += ["", "[imu]", f"axes = [{', '.join(repr(a).replace(chr(39), chr(34)) for a in imu.axes)}]",
+              f"position_m = [{', '.join(repr(float(p)) for p in imu.position_m)}]",
+              "", "[can]", f'dbc = "{dbc_name}"', "", "[can.signals]"]
+    lines += [f'{k} = "{v}"' for k, v in signals.items()]
+    lines += ["", "[video]", f"fps = {fps!r}", f"start_s = {start_s!r}", ""]
+    return "\n".join(lines)
+
+
+def _open_video(path: Path, codec: str, fps: float, size: tuple[int, int]):
+    if codec == "png":
+        path.mkdir(parents=True, exist_ok=True)
+        return None
+    fourcc = {"mp4v": "mp4v", "ffv1": "FFV1", "mjpg": "MJPG"}[codec]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, size)
+    if not writer.isOpened():
+        raise InputError(f"{path}: OpenCV cannot write {codec} video on this machine")
+    return writer
+
+
+def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
+             max_frames: int | None = None, render_video: bool = True, overwrite: bool = False) -> DriveFiles:
+    """Simulate ``scenario`` into ``out_dir``; see the module docstring for the files."""
+    from .canlog import DBC_PATH, signal_map, write_can_log
+
+    out_dir = Path(out_dir)
+    if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
+        raise InputError(f"{out_dir}: exists and is not empty (use --force to replace it)")
+    tmp = out_dir.with_name(out_dir.name + ".partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    files = DriveFiles.in_dir(tmp, scenario.video.codec, scenario.can.format, DBC_PATH.name)
+
+    rng = np.random.default_rng(scenario.seed)
+    road = build_road(scenario)
+    traj = Trajectory(road, scenario.motion)
+
+    imu_meas, speed, imu_true = simulate_imu(traj, scenario.imu, scenario.duration_s, rng)
+    offset = write_can_log(files.can_log, imu_meas, speed, dbc_path=DBC_PATH,
+                           start_epoch_s=scenario.can.start_epoch_s, extra_traffic=scenario.can.extra_traffic,
+                           include_pitch_rate=scenario.imu.pitch_rate, seed=scenario.seed)
+    shutil.copyfile(DBC_PATH, files.dbc)
+    imu_true = imu_true.assign(t_s=imu_true["t_s"] + offset)
+    imu_true.to_csv(files.imu_truth, index=False, float_format="%.9g")
+
+    t_truth = np.arange(int(math.floor(scenario.duration_s * scenario.truth_rate_hz + 1e-9)) + 1) / scenario.truth_rate_hz
+    truth_frame(traj, t_truth, t_truth + offset).to_csv(files.truth, index=False, float_format="%.9g")
+
+    n = scenario.n_frames if max_frames is None else min(max_frames, scenario.n_frames)
+    t_frames = scenario.video.start_s + np.arange(n) / scenario.video.fps
+    tf = truth_frame(traj, t_frames, t_frames + offset)
+    tf.insert(0, "frame", np.arange(n))
+    tf.to_csv(files.truth_frames, index=False, float_format="%.9g")
+    pd.DataFrame({"frame": np.arange(n), "t_s": t_frames + offset + scenario.video.camera_time_offset_s}).to_csv(
+        files.frames, index=False, float_format="%.9f")
+    files.config.write_text(_config_toml(scenario, files.dbc.name, signal_map(scenario.imu.pitch_rate),
+                                         scenario.video.fps, float(t_frames[0] + offset) if n else offset))
+    if scenario.source is not None and Path(scenario.source).is_file():
+        shutil.copyfile(scenario.source, tmp / "scenario.toml")
+
+    if render_video and n:
+        renderer = Renderer(road, scenario.camera, scenario.markings, scenario.look,
+                            supersample=scenario.supersample, texture_seed=scenario.seed + 1)
+        size = (scenario.camera.width, scenario.camera.height)
+        writer = _open_video(files.video, scenario.video.codec, scenario.video.fps, size)
+        poses = traj.pose(t_frames)
+        R_v_from_cp, cam_v = scenario.mount.R_v_from_cp, scenario.mount.position_v
+        try:
+            for f in tqdm(range(n), desc=f"render {scenario.name}", unit="frame", disable=not progress):
+                R_w_from_v, P = poses["R_w_from_v"][f], poses["P_w"][f]
+                rad = renderer.radiance(R_w_from_v @ R_v_from_cp, P + R_w_from_v @ cam_v,
+                                        poses["s"][f], poses["d"][f], poses["R_w_from_o"][f], P)
+                frame = renderer.sensor(rad, rng)
+                if f == 0:
+                    cv2.imwrite(str(tmp / "preview.png"), frame)
+                if writer is None:
+                    cv2.imwrite(str(files.video / f"{f:06d}.png"), frame)
+                else:
+                    writer.write(frame)
+        finally:
+            if writer is not None:
+                writer.release()
+
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    tmp.rename(out_dir)
+    return DriveFiles.in_dir(out_dir, scenario.video.codec, scenario.can.format, DBC_PATH.name)
