@@ -38,7 +38,7 @@ from .road import Road, Segment
 from .scenario import Scenario
 from .trajectory import Trajectory
 
-__all__ = ["DriveFiles", "build_road", "simulate", "truth_frame"]
+__all__ = ["DriveFiles", "build_road", "render_frames", "simulate", "truth_frame"]
 
 VIDEO_NAMES = {"mp4v": "video.mp4", "ffv1": "video.avi", "mjpg": "video.avi", "png": "video"}
 
@@ -89,6 +89,25 @@ def truth_frame(traj: Trajectory, t_drive_s: np.ndarray, t_clock_s: np.ndarray) 
     for k in ("station_m", "lateral_offset_m", "speed_m_s", "curvature_1_m"):
         df[k] = tr[k]
     return df
+
+
+def render_frames(scenario: Scenario, t_drive_s, *, road: Road | None = None, traj: Trajectory | None = None,
+                  rng: np.random.Generator | None = None, sensor: bool = True):
+    """Yield the camera frames (uint8 BGR, or linear float radiance with ``sensor=False``) at
+    drive times ``t_drive_s``, without writing anything: for tests and benchmarks."""
+    road = road or build_road(scenario)
+    traj = traj or Trajectory(road, scenario.motion)
+    rng = rng or np.random.default_rng(scenario.seed)
+    renderer = Renderer(road, scenario.camera, scenario.markings, scenario.look,
+                        supersample=scenario.supersample, texture_seed=scenario.seed + 1)
+    t = np.atleast_1d(np.asarray(t_drive_s, dtype=float))
+    poses = traj.pose(t)
+    R_v_from_cp, cam_v = scenario.mount.R_v_from_cp, scenario.mount.position_v
+    for f in range(len(t)):
+        R_w_from_v, P = poses["R_w_from_v"][f], poses["P_w"][f]
+        rad = renderer.radiance(R_w_from_v @ R_v_from_cp, P + R_w_from_v @ cam_v,
+                                poses["s"][f], poses["d"][f], poses["R_w_from_o"][f], P)
+        yield renderer.sensor(rad, rng) if sensor else rad
 
 
 def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps: float, start_s: float) -> str:
@@ -169,18 +188,12 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         shutil.copyfile(scenario.source, tmp / "scenario.toml")
 
     if render_video and n:
-        renderer = Renderer(road, scenario.camera, scenario.markings, scenario.look,
-                            supersample=scenario.supersample, texture_seed=scenario.seed + 1)
-        size = (scenario.camera.width, scenario.camera.height)
-        writer = _open_video(files.video, scenario.video.codec, scenario.video.fps, size)
-        poses = traj.pose(t_frames)
-        R_v_from_cp, cam_v = scenario.mount.R_v_from_cp, scenario.mount.position_v
+        writer = _open_video(files.video, scenario.video.codec, scenario.video.fps,
+                             (scenario.camera.width, scenario.camera.height))
         try:
-            for f in tqdm(range(n), desc=f"render {scenario.name}", unit="frame", disable=not progress):
-                R_w_from_v, P = poses["R_w_from_v"][f], poses["P_w"][f]
-                rad = renderer.radiance(R_w_from_v @ R_v_from_cp, P + R_w_from_v @ cam_v,
-                                        poses["s"][f], poses["d"][f], poses["R_w_from_o"][f], P)
-                frame = renderer.sensor(rad, rng)
+            frames = render_frames(scenario, t_frames, road=road, traj=traj, rng=rng)
+            for f, frame in enumerate(tqdm(frames, total=n, desc=f"render {scenario.name}", unit="frame",
+                                           disable=not progress)):
                 if f == 0:
                     cv2.imwrite(str(tmp / "preview.png"), frame)
                 if writer is None:
