@@ -197,13 +197,19 @@ def parse_can(t: Table, base_dir: Path) -> CanMapping | None:
         return None
     dbc = t.get("dbc", "str")
     gap = t.get("gap_limit_s", "float", 0.1, min=1e-6)
+    window = t.get("align_window_s", "float", 0.002, min=1e-6)
+    range_check = t.get("range_check", "bool", True)
+    pad_short = t.get("pad_short_frames", "bool", False)
+    channel = t.get("channel", "str" if isinstance(t.data.get("channel"), str) else "int", None)
     signals_t = t.sub("signals", required=True)
     signals = {k: signals_t.get(k, "str") for k in list(signals_t.data)}
     units_t = t.sub("units")
     units = {k: units_t.get(k, "str") for k in list(units_t.data)}
     t.done()
     dbc_path = Path(dbc) if Path(dbc).is_absolute() else base_dir / dbc
-    return _build(t.source, "can", lambda: CanMapping(dbc_path, signals, units, gap))
+    return _build(t.source, "can", lambda: CanMapping(
+        dbc_path, signals, units, gap, align_window_s=window, range_check=range_check,
+        pad_short_frames=pad_short, channel=channel))
 
 
 def parse_video(t: Table) -> VideoTiming:

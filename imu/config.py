@@ -66,12 +66,35 @@ class CanMapping:
     ``signals`` maps channel names of :data:`CHANNELS` to ``"MESSAGE.SIGNAL"``; ``units``
     overrides the DBC unit string per channel; gaps longer than ``gap_limit_s`` are reported
     and never interpolated across.
+
+    Attributes
+    ----------
+    align_window_s : float
+        Frames of the other IMU messages join the sample of the clock message (the message of
+        the first mapped gyro/accel channel) when they are at most this far from it in time, s.
+        Rate and acceleration frames of one IMU sample arrive a few hundred microseconds apart.
+    range_check : bool
+        Values outside the DBC signal's ``[minimum|maximum]`` are invalid (NaN, not fresh) when
+        True; when False they are passed on and only counted. Some real DBCs (opendbc) give raw
+        ranges such as ``[0|65535]`` for signed quantities and need False.
+    pad_short_frames : bool
+        Frames shorter than the DBC length are zero-padded and decoded (counted as padded) when
+        True, skipped and counted as wrong length when False. Some loggers drop trailing zero
+        bytes (comma2k19's raw arrays).
+    channel : int, str or None
+        Decode only frames from this bus channel as python-can reports it for the log format
+        (``0`` for .asc/.blf, ``"can0"`` for candump .log); None takes every channel but stops
+        with an error if a mapped frame ID shows up on more than one.
     """
 
     dbc_path: Path
     signals: Mapping[str, str]
     units: Mapping[str, str] = field(default_factory=dict)
     gap_limit_s: float = 0.1
+    align_window_s: float = 0.002
+    range_check: bool = True
+    pad_short_frames: bool = False
+    channel: int | str | None = None
 
     def __post_init__(self) -> None:
         for ch, ref in self.signals.items():
@@ -84,5 +107,17 @@ class CanMapping:
                 raise ImuConfigError(f"[can.units] {ch}: no such mapped channel")
         if not self.gap_limit_s > 0:
             raise ImuConfigError(f"[can] gap_limit_s must be > 0, got {self.gap_limit_s}")
+        if not 0 < self.align_window_s < self.gap_limit_s:
+            raise ImuConfigError(
+                f"[can] align_window_s must be > 0 and < gap_limit_s = {self.gap_limit_s}, got {self.align_window_s}"
+            )
+        if not any(ch in self.signals for ch in GYRO + ACCEL):
+            raise ImuConfigError(
+                f"[can.signals] maps no gyro or accel channel (got {', '.join(self.signals) or 'none'}): "
+                "an IMU needs at least one"
+            )
+        if self.channel is not None and (isinstance(self.channel, bool) or not isinstance(self.channel, (int, str))):
+            raise ImuConfigError(f"[can] channel must be an integer or a string, got {self.channel!r}")
+        object.__setattr__(self, "dbc_path", Path(self.dbc_path))
         object.__setattr__(self, "signals", MappingProxyType(dict(self.signals)))
         object.__setattr__(self, "units", MappingProxyType(dict(self.units)))

@@ -1,0 +1,403 @@
+"""IMU samples from a live CAN bus (any python-can ``BusABC``), one frame at a time.
+
+:class:`StreamDecoder` applies the log path's acceptance rules (:mod:`imu.log_source`) and
+alignment rule (:mod:`imu.samples`) incrementally, so a stream of messages gives the same samples
+as the log of that stream; ``tests/test_imu_align.py`` and ``tests/test_imu_live.py`` check it.
+A sample is yielded as soon as it is complete (its clock frame and one frame of every other IMU
+source have arrived), so the latency from the last frame's arrival is only the decode time.
+A sample that stays incomplete is yielded when a later frame shows that nothing can join it any
+more, or, on a quiet bus, ``align_window_s`` plus a margin after its clock frame arrived.
+
+:class:`LiveSource` wraps a bus::
+
+    with can.Bus(interface="socketcan", channel="can0") as bus:
+        for sample in LiveSource(bus, cfg.can, cfg.imu):
+            ...
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Iterator
+
+import can
+import numpy as np
+
+from .config import ACCEL, CHANNELS, GYRO, CanMapping, ImuMount
+from .dbc import DecodePlan, resolve
+from .decode import decode_source
+from .samples import (
+    VALUE_COLUMNS, ChannelStats, Gap, ImuSample, SourceStats, Summary, unavailable_channels,
+    vehicle_channel_map,
+)
+
+__all__ = ["StreamDecoder", "LiveSource"]
+
+_IMU = set(GYRO + ACCEL)
+
+
+@dataclass
+class _Group:
+    """An open sample: the clock frame's time and the IMU channel values that joined it."""
+
+    t_s: float
+    received_s: float
+    values: dict = field(default_factory=dict)
+    sources: set = field(default_factory=set)
+    emitted: bool = False
+
+
+@dataclass
+class _SourceCount:
+    frames: int = 0
+    duplicates: int = 0
+    unaligned: int = 0
+    last_t: float = -math.inf
+    gaps: list = field(default_factory=list)
+    valid: dict = field(default_factory=dict)
+    invalid: dict = field(default_factory=dict)
+    out_of_range: dict = field(default_factory=dict)
+    first_t: float = math.nan
+
+
+class StreamDecoder:
+    """Frames in, samples out: the incremental twin of :func:`imu.read_log`.
+
+    Parameters
+    ----------
+    mapping : CanMapping
+    mount : ImuMount
+    db : cantools Database, optional
+        Instead of loading ``mapping.dbc_path``.
+
+    Notes
+    -----
+    Feed messages in arrival order with :meth:`push`; call :meth:`expire` now and then on a
+    quiet bus and :meth:`flush` at the end. Without ``[can] channel`` the first bus channel a
+    mapped ID is seen on is used and frames of that ID from other channels are counted as
+    ``other_channel`` (the log path stops with an error instead, as it sees the whole file).
+    """
+
+    def __init__(self, mapping: CanMapping, mount: ImuMount, db: Any | None = None, *,
+                 plan: DecodePlan | None = None) -> None:
+        self.plan = plan if plan is not None else resolve(mapping, db)
+        self.mapping = self.plan.mapping
+        self.mount = mount
+        self.window_s = self.mapping.align_window_s
+        self.gap_limit_s = self.mapping.gap_limit_s
+        self._by_id: dict[int, list[int]] = {}
+        for i, s in enumerate(self.plan.sources):
+            self._by_id.setdefault(s.frame_id, []).append(i)
+        self._msg = {fid: self.plan.sources[idx[0]] for fid, idx in self._by_id.items()}
+        self._width = {fid: s.length for fid, s in self._msg.items()}
+        self._imu_sources = {i for i, s in enumerate(self.plan.sources)
+                             if any(p.channel in _IMU for p in s.signals)}
+        self._clock = self.plan.clock
+        self._vmap = vehicle_channel_map(mount)
+        self._chan_lock: dict[int, Any] = {}
+        self._last_t = -math.inf
+        self._src = [_SourceCount() for _ in self.plan.sources]
+        self._msg_counts: dict[int, dict[str, int]] = {fid: {} for fid in self._by_id}
+        self._open: deque[_Group] = deque()
+        self._refs: deque[_Group] = deque()
+        self._pending: deque[tuple] = deque()
+        self._speed: deque[tuple[float, float, int]] = deque()
+        self._speed_n = 0
+        self._prev_speed_idx = -1
+        self._last_emitted_t = -math.inf
+        self.frames_read = 0
+        self.frames_mapped = 0
+        self.unknown_ids: dict[str, int] = {}
+        self.unmapped_frames = 0
+        self.error_frames = 0
+        self.samples = 0
+        self._first_sample_t = math.nan
+        self._last_sample_t = math.nan
+
+    # --- frame acceptance (same order as imu.log_source._finish) ---------------------------
+    def push(self, msg: can.Message, received_s: float | None = None) -> list[ImuSample]:
+        """Take one message; return the samples it completes or closes (often none or one)."""
+        received_s = time.perf_counter() if received_s is None else received_s
+        self.frames_read += 1
+        aid = msg.arbitration_id
+        idx = self._by_id.get(aid)
+        if idx is None:
+            if aid in self.plan.known_ids:
+                self.unmapped_frames += 1
+            elif msg.is_error_frame:
+                self.error_frames += 1
+            else:
+                key = f"0x{aid:X}"
+                self.unknown_ids[key] = self.unknown_ids.get(key, 0) + 1
+            return []
+        self.frames_mapped += 1
+        ref = self._msg[aid]
+        counts = self._msg_counts[aid]
+        if msg.is_error_frame:
+            self.error_frames += 1
+            return []
+        if bool(msg.is_extended_id) != ref.is_extended:
+            key = f"0x{aid:X}" + ("x" if msg.is_extended_id else " (standard)")
+            self.unknown_ids[key] = self.unknown_ids.get(key, 0) + 1
+            return []
+        if self.mapping.channel is not None:
+            if str(msg.channel) != str(self.mapping.channel):
+                counts["other_channel"] = counts.get("other_channel", 0) + 1
+                return []
+        else:
+            locked = self._chan_lock.setdefault(aid, msg.channel)
+            if locked != msg.channel:
+                counts["other_channel"] = counts.get("other_channel", 0) + 1
+                return []
+        if msg.is_remote_frame:
+            counts["remote"] = counts.get("remote", 0) + 1
+            return []
+        t = msg.timestamp
+        if not (math.isfinite(t) and abs(t) < 1e12):
+            counts["bad_timestamp"] = counts.get("bad_timestamp", 0) + 1
+            return []
+        data = bytes(msg.data)
+        length = ref.length
+        if len(data) < length:
+            if self.mapping.pad_short_frames:
+                counts["padded"] = counts.get("padded", 0) + 1
+            else:
+                counts["wrong_length"] = counts.get("wrong_length", 0) + 1
+                return []
+        elif len(data) > length:
+            counts["excess_length"] = counts.get("excess_length", 0) + 1
+        if t < self._last_t:
+            counts["backwards"] = counts.get("backwards", 0) + 1
+            return []
+        self._last_t = t
+        row = np.zeros((1, length), dtype=np.uint8)
+        d = data[:length]
+        if d:
+            row[0, :len(d)] = np.frombuffer(d, dtype=np.uint8)
+        out: list[ImuSample] = []
+        for si in idx:
+            src = self.plan.sources[si]
+            vals = decode_source(row, src, self.mapping.range_check)
+            if not vals.present[0]:
+                continue
+            sc = self._src[si]
+            if t == sc.last_t:
+                sc.duplicates += 1
+                continue
+            if sc.frames and t - sc.last_t > self.gap_limit_s:
+                sc.gaps.append(Gap(src.name, sc.last_t, t - sc.last_t))
+            if not sc.frames:
+                sc.first_t = t
+            sc.frames += 1
+            sc.last_t = t
+            for j, p in enumerate(src.signals):
+                key = "valid" if vals.valid[0, j] else "invalid"
+                getattr(sc, key)[p.channel] = getattr(sc, key).get(p.channel, 0) + 1
+                sc.out_of_range[p.channel] = sc.out_of_range.get(p.channel, 0) + int(vals.out_of_range[j])
+            out.extend(self._event(si, t, vals.si[0], vals.valid[0], received_s))
+        return out
+
+    # --- alignment (same rule as imu.samples.align) ------------------------------------------
+    def _event(self, si: int, t: float, si_row: np.ndarray, valid_row: np.ndarray,
+               received_s: float) -> list[ImuSample]:
+        w = self.window_s
+        out = self._close_before(t - w)
+        src = self.plan.sources[si]
+        imu = [(p.channel, float(si_row[j]), bool(valid_row[j])) for j, p in enumerate(src.signals)
+               if p.channel in _IMU]
+        for j, p in enumerate(src.signals):
+            if p.channel == "speed" and valid_row[j]:
+                self._speed.append((t, float(si_row[j]), self._speed_n))
+                self._speed_n += 1
+        if si == self._clock:
+            g = _Group(t_s=t, received_s=received_s)
+            self._join(g, si, imu)
+            self._open.append(g)
+            self._refs.append(g)
+            pending, self._pending = self._pending, deque()
+            for (tp, sp, imu_p) in pending:  # all within the window: older ones expired above
+                if sp in g.sources:
+                    self._src[sp].unaligned += 1
+                else:
+                    self._join(g, sp, imu_p)
+        elif imu:
+            g = next((r for r in self._refs if r.t_s >= t - w), None)
+            if g is None:
+                self._pending.append((t, si, imu))
+            elif g.emitted or si in g.sources:
+                self._src[si].unaligned += 1
+            else:
+                self._join(g, si, imu)
+        while self._open and self._open[0].sources >= self._imu_sources:
+            out.append(self._emit(self._open.popleft()))
+        return out
+
+    @staticmethod
+    def _join(g: _Group, si: int, imu: list) -> None:
+        g.sources.add(si)
+        for ch, v, ok in imu:
+            g.values[ch] = (v, ok)
+
+    def _close_before(self, t_limit: float) -> list[ImuSample]:
+        """Emit samples no frame at or after ``t_limit + window`` can join; expire pending frames."""
+        out = []
+        while self._open and self._open[0].t_s < t_limit:
+            out.append(self._emit(self._open.popleft()))
+        while self._refs and self._refs[0].t_s < t_limit and self._refs[0].emitted:
+            self._refs.popleft()
+        while self._pending and self._pending[0][0] < t_limit:
+            self._src[self._pending.popleft()[1]].unaligned += 1
+        return out
+
+    def _emit(self, g: _Group) -> ImuSample:
+        g.emitted = True
+        T = g.t_s
+        # speed: latest valid speed frame before T, if not older than gap_limit_s
+        while len(self._speed) > 1 and self._speed[1][0] < T:
+            self._speed.popleft()
+        speed, idx = math.nan, -1
+        if self._speed and self._speed[0][0] < T:
+            ts, v, idx = self._speed[0]
+            if T - ts <= self.gap_limit_s:
+                speed = v
+        fresh_speed = not math.isnan(speed) and idx > self._prev_speed_idx
+        self._prev_speed_idx = idx
+        vals: dict[str, Any] = {"t_s": T}
+        for vch, ich, sign in self._vmap:
+            if vch == "speed":
+                continue
+            v, ok = g.values.get(ich, (math.nan, False))
+            col = VALUE_COLUMNS[CHANNELS.index(vch)]
+            vals[col] = (-v if sign < 0 else v) if ok else math.nan
+            vals[f"fresh_{vch}"] = bool(ok)
+        vals["speed_m_s"] = speed
+        vals["fresh_speed"] = bool(fresh_speed)
+        self.samples += 1
+        if self.samples == 1:
+            self._first_sample_t = T
+        self._last_sample_t = T
+        return ImuSample(received_s=g.received_s, **vals)
+
+    def expire(self, now_s: float | None = None, margin_s: float = 0.002) -> list[ImuSample]:
+        """On a quiet bus: emit samples whose clock frame arrived more than window + margin ago.
+
+        ``now_s`` and the arrival times are ``time.perf_counter()`` seconds.
+        """
+        now_s = time.perf_counter() if now_s is None else now_s
+        out = []
+        while self._open and now_s - self._open[0].received_s > self.window_s + margin_s:
+            out.append(self._emit(self._open.popleft()))
+        return out
+
+    def flush(self) -> list[ImuSample]:
+        """End of stream: emit every open sample; pending frames are unaligned."""
+        out = [self._emit(g) for g in self._open]
+        self._open.clear()
+        for _, sp, _ in self._pending:
+            self._src[sp].unaligned += 1
+        self._pending.clear()
+        return out
+
+    # --- report --------------------------------------------------------------------------
+    @property
+    def unavailable(self) -> tuple[str, ...]:
+        """Vehicle-frame value columns no mapped signal feeds (always NaN)."""
+        return unavailable_channels(self.mapping.signals, self.mount)
+
+    def summary(self, log: str = "live bus") -> Summary:
+        """Counts so far, in the same form as the log path's summary."""
+        sources = []
+        seen: set[int] = set()
+        for si, s in enumerate(self.plan.sources):
+            sc = self._src[si]
+            counts = self._msg_counts[s.frame_id] if s.frame_id not in seen else {}
+            seen.add(s.frame_id)
+            span = sc.last_t - sc.first_t
+            sources.append(SourceStats(
+                name=s.name, frame_id=s.id_text, frames=sc.frames,
+                rate_hz=(sc.frames - 1) / span if sc.frames > 1 and span > 0 else math.nan,
+                duplicates=sc.duplicates, unaligned=sc.unaligned, gaps=tuple(sc.gaps), **counts,
+            ))
+        value_col = dict(zip(CHANNELS, VALUE_COLUMNS))
+        col_of = {ich: value_col[vch] for vch, ich, _ in self._vmap}
+        channels = []
+        for si, s in enumerate(self.plan.sources):
+            sc = self._src[si]
+            for p in s.signals:
+                channels.append(ChannelStats(
+                    channel=p.channel, column=col_of[p.channel], ref=p.ref, unit=p.unit,
+                    decoded=sc.valid.get(p.channel, 0), invalid=sc.invalid.get(p.channel, 0),
+                    out_of_range=sc.out_of_range.get(p.channel, 0), rate_hz=math.nan,
+                ))
+        span = self._last_sample_t - self._first_sample_t
+        return Summary(
+            log=log, frames_read=self.frames_read, frames_mapped=self.frames_mapped, samples=self.samples,
+            duration_s=float(span) if self.samples else 0.0,
+            sample_rate_hz=(self.samples - 1) / span if self.samples > 1 and span > 0 else math.nan,
+            clock=self.plan.sources[self._clock].name, sources=tuple(sources), channels=tuple(channels),
+            unavailable=self.unavailable, unknown_ids=dict(self.unknown_ids),
+            unmapped_frames=self.unmapped_frames, error_frames=self.error_frames,
+        )
+
+
+class LiveSource:
+    """Iterate IMU samples from a live python-can bus.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        Any python-can bus (socketcan, pcan, vector, virtual, ...), opened by the caller.
+    mapping : CanMapping
+    mount : ImuMount
+    db : cantools Database, optional
+    poll_s : float
+        Longest wait in ``bus.recv``, s; bounds how late :meth:`stop` and quiet-bus samples are.
+
+    Examples
+    --------
+    >>> src = LiveSource(bus, cfg.can, cfg.imu)            # doctest: +SKIP
+    >>> for sample in src:                                   # doctest: +SKIP
+    ...     ekf.predict(sample.t_s, sample.gyro_z_rad_s)
+    """
+
+    def __init__(self, bus: can.BusABC, mapping: CanMapping, mount: ImuMount, db: Any | None = None,
+                 *, poll_s: float = 0.01) -> None:
+        if not poll_s > 0:
+            raise ValueError(f"poll_s must be > 0, got {poll_s}")
+        self.bus = bus
+        self.decoder = StreamDecoder(mapping, mount, db)
+        self.poll_s = poll_s
+        self._stop = threading.Event()
+
+    @property
+    def unavailable(self) -> tuple[str, ...]:
+        return self.decoder.unavailable
+
+    def stop(self) -> None:
+        """Make the iteration end (thread-safe); the samples still open are yielded first."""
+        self._stop.set()
+
+    def summary(self) -> Summary:
+        return self.decoder.summary(f"live bus {getattr(self.bus, 'channel_info', '')}".strip())
+
+    def __iter__(self) -> Iterator[ImuSample]:
+        dec = self.decoder
+        recv = self.bus.recv
+        clock = time.perf_counter
+        wait_max = self.poll_s
+        window = dec.window_s
+        while not self._stop.is_set():
+            timeout = wait_max
+            if dec._open:
+                timeout = min(wait_max, max(0.0, dec._open[0].received_s + window + 0.002 - clock()))
+            msg = recv(timeout=timeout)
+            if msg is not None:
+                yield from dec.push(msg, clock())
+            if dec._open:
+                yield from dec.expire(clock())
+        yield from dec.flush()
+

@@ -1,0 +1,262 @@
+"""The vehicle's DBC: loading it with cantools and resolving ``[can.signals]`` against it.
+
+:func:`load_dbc` turns every way a DBC can fail to load into one line naming the file (and the
+line, for syntax errors). :func:`resolve` checks each mapped ``MESSAGE.SIGNAL`` against the
+database, reads its unit and builds a :class:`DecodePlan`: which frame IDs to decode, how, and
+which message's frames set the sample clock.
+
+A *source* is one stream of frames: a message, or the frames of a multiplexed message that carry
+one multiplexer value. Signals of one source are decoded from the same frames; the alignment of
+:mod:`imu.samples` works on sources.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cantools
+
+from .config import ACCEL, CHANNELS, GYRO, CanMapping
+from .errors import DecodeError, ImuConfigError
+from .units import si_factor
+
+__all__ = ["MuxCondition", "SignalPlan", "SourcePlan", "DecodePlan", "load_dbc", "resolve"]
+
+
+@dataclass(frozen=True)
+class MuxCondition:
+    """A frame carries a multiplexed signal only when ``int(multiplexer) in ids``."""
+
+    signal: Any  # cantools.database.can.Signal
+    ids: frozenset[int]
+
+
+@dataclass(frozen=True)
+class SignalPlan:
+    """One mapped channel: where it is and how to turn it into SI.
+
+    ``factor_si`` multiplies the DBC physical value (``raw * scale + offset``) to rad/s, m/s^2
+    or m/s; ``resolution_si`` is one raw step in SI. ``minimum``/``maximum`` are the DBC's
+    physical range (None where the DBC gives none).
+    """
+
+    channel: str
+    ref: str
+    signal: Any  # cantools.database.can.Signal
+    unit: str
+    factor_si: float
+    resolution_si: float
+    minimum: float | None
+    maximum: float | None
+
+
+@dataclass(frozen=True)
+class SourcePlan:
+    """A stream of frames: message ``frame_id`` restricted by ``mux`` (empty: every frame)."""
+
+    name: str
+    frame_id: int
+    is_extended: bool
+    length: int
+    message: Any  # cantools.database.can.Message
+    mux: tuple[MuxCondition, ...]
+    signals: tuple[SignalPlan, ...]
+
+    @property
+    def id_text(self) -> str:
+        return f"0x{self.frame_id:X}" + ("x" if self.is_extended else "")
+
+
+@dataclass(frozen=True)
+class DecodePlan:
+    """Everything the decoders need, resolved once from the DBC and the mapping.
+
+    ``clock`` indexes the source whose frames define the sample times: the source of the first
+    mapped channel in the order gyro_x, gyro_y, gyro_z, accel_x, accel_y, accel_z (IMU axes).
+    ``known_ids`` holds every frame ID of the DBC, to tell unmapped traffic from unknown IDs.
+    """
+
+    dbc_path: Path
+    sources: tuple[SourcePlan, ...]
+    clock: int
+    known_ids: frozenset[int]
+    mapping: CanMapping
+
+    @property
+    def channel_plans(self) -> dict[str, tuple[int, SignalPlan]]:
+        """IMU-axes channel -> (source index, plan)."""
+        return {sp.channel: (i, sp) for i, src in enumerate(self.sources) for sp in src.signals}
+
+    @property
+    def mapped_ids(self) -> frozenset[int]:
+        return frozenset(s.frame_id for s in self.sources)
+
+
+_SYNTAX = re.compile(r"line (\d+), column (\d+): \"(.*)\"", re.S)
+
+
+def load_dbc(path: str | Path) -> Any:
+    """Load a DBC (or any database format cantools reads) with clear one-line errors.
+
+    Parameters
+    ----------
+    path : str or Path
+        The database file.
+
+    Returns
+    -------
+    cantools.database.can.Database
+
+    Raises
+    ------
+    DecodeError
+        Missing or unreadable file, or a syntax error (the message names file, line and column).
+
+    Notes
+    -----
+    ``strict=False``: overlapping signals elsewhere in a real DBC do not stop the decoding of the
+    mapped ones; :func:`resolve` checks the mapped signals fit their message.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise DecodeError(f"{path}: no such DBC file")
+    if path.is_dir():
+        raise DecodeError(f"{path}: is a directory, expected a DBC file")
+    try:
+        return cantools.database.load_file(path, strict=False)
+    except cantools.database.UnsupportedDatabaseFormatError as e:
+        text = " ".join(str(e).split())
+        m = _SYNTAX.search(text)
+        if m:
+            line, col = int(m.group(1)), int(m.group(2))
+            near = m.group(3).replace(">>!<<", "")[:60]
+            hint = (f"; the statement before it (line {line - 1}) may lack its ';'"
+                    if col == 1 and line > 1 else "")
+            raise DecodeError(f"{path}:{line}: DBC syntax error at column {col} near '{near}'{hint}") from None
+        raise DecodeError(f"{path}: not a DBC cantools can read: {text[:200]}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise DecodeError(f"{path}: cannot read DBC: {e}") from None
+    except Exception as e:  # noqa: BLE001 - cantools' parsers raise many types on garbage input
+        raise DecodeError(f"{path}: cannot parse DBC: {type(e).__name__}: {' '.join(str(e).split())[:200]}") from None
+
+
+def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
+    """Check ``mapping`` against the DBC and build the decode plan.
+
+    Parameters
+    ----------
+    mapping : CanMapping
+        ``[can]`` settings; ``mapping.dbc_path`` is loaded unless ``db`` is given.
+    db : cantools Database, optional
+        An already loaded database.
+
+    Raises
+    ------
+    ImuConfigError
+        A mapped message or signal is not in the DBC, its unit is missing, unknown or of the
+        wrong quantity, one signal is mapped twice, or the signal does not fit its message.
+    DecodeError
+        The DBC does not load.
+    """
+    path = Path(mapping.dbc_path)
+    if db is None:
+        db = load_dbc(path)
+    name = path.name
+    names = [m.name for m in db.messages]
+    by_source: dict[tuple, list[SignalPlan]] = {}
+    src_info: dict[tuple, tuple[Any, tuple[MuxCondition, ...]]] = {}
+    seen: dict[str, str] = {}
+    for channel in CHANNELS:
+        if channel not in mapping.signals:
+            continue
+        ref = mapping.signals[channel]
+        msg_name, sig_name = ref.split(".")
+        if ref in seen:
+            raise ImuConfigError(f"[can.signals] {channel} and {seen[ref]} both map {ref}")
+        seen[ref] = channel
+        try:
+            msg = db.get_message_by_name(msg_name)
+        except KeyError:
+            raise ImuConfigError(
+                f'{name}: [can.signals] {channel} = "{ref}": no message "{msg_name}" in the DBC'
+                + _suggest(msg_name, names)
+            ) from None
+        if getattr(msg, "is_container", False):
+            raise ImuConfigError(f"{name}: {ref}: container messages are not supported")
+        try:
+            sig = msg.get_signal_by_name(sig_name)
+        except KeyError:
+            raise ImuConfigError(
+                f'{name}: [can.signals] {channel} = "{ref}": message {msg_name} has no signal "{sig_name}"'
+                + _suggest(sig_name, [s.name for s in msg.signals])
+            ) from None
+        unit_override = mapping.units.get(channel)
+        unit = unit_override if unit_override is not None else (sig.unit or "")
+        where = f"[can.units] {channel}" if unit_override is not None else f"{name}: {ref}"
+        factor = si_factor(unit, channel, where)
+        _check_fits(sig, msg, f"{name}: {ref}")
+        mux = _mux_chain(sig, msg, f"{name}: {ref}")
+        key = (msg.frame_id, bool(msg.is_extended_frame),
+               tuple((c.signal.name, tuple(sorted(c.ids))) for c in mux))
+        lo, hi = sig.minimum, sig.maximum
+        plan = SignalPlan(
+            channel=channel, ref=ref, signal=sig, unit=unit, factor_si=factor,
+            resolution_si=abs(float(sig.scale)) * factor,
+            minimum=None if lo is None else float(lo), maximum=None if hi is None else float(hi),
+        )
+        by_source.setdefault(key, []).append(plan)
+        src_info[key] = (msg, mux)
+    sources = []
+    for key, plans in by_source.items():
+        msg, mux = src_info[key]
+        label = msg.name + "".join(f"[{c.signal.name}={'|'.join(map(str, sorted(c.ids)))}]" for c in mux)
+        sources.append(SourcePlan(
+            name=label, frame_id=msg.frame_id, is_extended=bool(msg.is_extended_frame),
+            length=int(msg.length), message=msg, mux=mux, signals=tuple(plans),
+        ))
+    first = next(ch for ch in GYRO + ACCEL if ch in mapping.signals)
+    clock = next(i for i, s in enumerate(sources) if any(p.channel == first for p in s.signals))
+    known = frozenset(m.frame_id for m in db.messages)
+    return DecodePlan(dbc_path=path, sources=tuple(sources), clock=clock, known_ids=known, mapping=mapping)
+
+
+def _suggest(word: str, options: list[str]) -> str:
+    close = difflib.get_close_matches(word, options, n=3, cutoff=0.6)
+    if close:
+        return f" (did you mean {', '.join(close)}?)"
+    if not options:
+        return " (it has none)"
+    shown = ", ".join(sorted(options)[:8])
+    return f" (it has {shown}{', ...' if len(options) > 8 else ''})"
+
+
+def _check_fits(sig: Any, msg: Any, where: str) -> None:
+    if sig.byte_order == "little_endian":
+        first, last = sig.start, sig.start + sig.length - 1
+    else:
+        msb = 8 * (sig.start // 8) + 7 - sig.start % 8
+        first, last = msb, msb + sig.length - 1
+    if sig.length < 1 or sig.length > 64 or first < 0 or last >= 8 * msg.length:
+        raise ImuConfigError(
+            f"{where}: signal bits {first}..{last} do not fit the {msg.length}-byte message"
+        )
+    if sig.is_float and sig.length not in (16, 32, 64):
+        raise ImuConfigError(f"{where}: a float signal must be 16, 32 or 64 bits, got {sig.length}")
+
+
+def _mux_chain(sig: Any, msg: Any, where: str) -> tuple[MuxCondition, ...]:
+    chain: list[MuxCondition] = []
+    cur = sig
+    for _ in range(8):
+        if not cur.multiplexer_signal:
+            return tuple(reversed(chain))
+        ids = cur.multiplexer_ids or []
+        parent = msg.get_signal_by_name(cur.multiplexer_signal)
+        _check_fits(parent, msg, f"{where} (multiplexer {parent.name})")
+        chain.append(MuxCondition(signal=parent, ids=frozenset(int(i) for i in ids)))
+        cur = parent
+    raise ImuConfigError(f"{where}: multiplexing nested deeper than 8 levels")

@@ -1,0 +1,588 @@
+"""IMU samples from a CAN log file of any format python-can reads.
+
+python-can's readers do the parsing (``.asc .blf .csv .log .trc .mf4``, and ``.gz`` of the text
+ones); this module makes them robust and fast for the IMU:
+
+* **Only mapped frame IDs are kept.** The loop over messages does one set lookup per frame;
+  everything else is counted (unknown IDs by ID) and dropped. Kept frames are packed every
+  8192 messages into numpy arrays, then decoded per message with :mod:`imu.decode`.
+* **Bad input is counted, not fatal.** A line a text reader cannot parse is skipped and counted
+  (the reader is restarted after it, with the file's header lines replayed so the format state
+  survives); a binary log that breaks off keeps what came before and is marked incomplete; the
+  readers' own log warnings are counted instead of printed. Files that give nothing readable,
+  and logs whose clock runs backwards for more than 1 % of the mapped frames, stop with a
+  one-line :class:`~imu.errors.DecodeError` naming the file and the line or frame ID.
+* **Frame acceptance** (the same rules as the live path in :mod:`imu.can_source`), in order:
+  error frames, IDs with the other standard/extended flag, other bus channels, remote frames,
+  non-finite timestamps, frames shorter than the DBC length (unless ``pad_short_frames``),
+  timestamps earlier than an already accepted mapped frame ("backwards"), and a second frame of
+  the same source at the same timestamp ("duplicate") are skipped and counted per message.
+
+Timestamps are those python-can's ``LogReader`` returns with default arguments (the log clock of
+``INTERFACE.md``).
+"""
+
+from __future__ import annotations
+
+import gzip
+import logging
+import math
+import warnings
+from collections import deque
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from itertools import islice
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import can
+import numpy as np
+import pandas as pd
+from can.io.generic import TextIOMessageReader
+from can.util import dlc2len, len2dlc
+
+from .config import CHANNELS, CanMapping, ImuMount
+from .dbc import DecodePlan, resolve
+from .decode import decode_source
+from .errors import DecodeError, ImuConfigError
+from .samples import (
+    VALUE_COLUMNS, ChannelStats, SourceFrames, SourceStats, Summary, align, find_gaps, make_frame, median_period_s, rate_hz,
+    unavailable_channels, vehicle_channel_map,
+)
+
+__all__ = ["read_log", "LOG_SUFFIXES", "iter_messages", "ReadState"]
+
+#: Log formats python-can reads (``.gz`` of the text ones too).
+LOG_SUFFIXES = tuple(sorted(s for s in can.io.MESSAGE_READERS if s != ".db"))
+
+_BATCH = 8192
+#: Unreadable lines tolerated before the file is declared not a log of its format.
+_MAX_BAD_LINES_FRACTION = 0.5
+#: A clock that runs backwards for more than this fraction of mapped frames stops the read.
+_MAX_BACKWARDS_FRACTION = 0.01
+
+
+@dataclass
+class ReadState:
+    """What the robust reader saw besides messages."""
+
+    path: Path
+    fmt: str
+    bad_lines: int = 0
+    warnings: int = 0
+    problems: list[str] = field(default_factory=list)
+    complete: bool = True
+    messages: int = 0
+    position: Callable[[], int] | None = None
+    size: int | None = None
+
+    def problem(self, text: str) -> None:
+        if len(self.problems) < 20:
+            self.problems.append(" ".join(text.split())[:300])
+
+
+class _Lines:
+    """Line iterator handed to python-can's text readers: counts lines and replays the header."""
+
+    def __init__(self, f: Any) -> None:
+        self.f = f
+        self.line_no = 0
+        self.chars = 0
+        self.replay: deque[str] = deque()
+        self.recording = True
+        self.recorded: list[str] = []
+
+    def __iter__(self) -> "_Lines":
+        return self
+
+    def __next__(self) -> str:
+        if self.replay:
+            return self.replay.popleft()
+        line = next(self.f)
+        self.line_no += 1
+        self.chars += len(line)
+        if self.recording:
+            self.recorded.append(line)
+        return line
+
+    def close(self) -> None:  # python-can's reader.stop() closes its file; we close the real one
+        pass
+
+
+class _CountWarnings(logging.Handler):
+    def __init__(self, state: ReadState) -> None:
+        super().__init__(logging.WARNING)
+        self.state = state
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.state.warnings += 1
+        if self.state.warnings <= 3:
+            self.state.problem(f"reader warning: {record.getMessage()}")
+
+
+@contextmanager
+def _quiet_readers(state: ReadState) -> Iterator[None]:
+    """Count python-can's and asammdf's logged warnings instead of printing them."""
+    handler = _CountWarnings(state)
+    saved = []
+    for name in ("can", "asammdf"):
+        lg = logging.getLogger(name)
+        saved.append((lg, lg.propagate))
+        lg.addHandler(handler)
+        lg.propagate = False
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        for lg, prop in saved:
+            lg.removeHandler(handler)
+            lg.propagate = prop
+
+
+def _suffix(path: Path) -> tuple[str, bool]:
+    suffixes = [s.lower() for s in path.suffixes]
+    if suffixes and suffixes[-1] == ".gz" and len(suffixes) >= 2:
+        return suffixes[-2], True
+    return (suffixes[-1] if suffixes else ""), False
+
+
+def iter_messages(path: str | Path, state: ReadState | None = None) -> Iterator[can.Message]:
+    """Messages of a log file, as python-can's ``LogReader(path)`` gives them, but robust.
+
+    Unparseable text lines are skipped and counted in ``state.bad_lines``; a binary file that
+    breaks off ends the iteration with ``state.complete = False``.
+
+    Raises
+    ------
+    DecodeError
+        Missing file, unknown format, a file the reader cannot open, or a text file whose lines
+        are mostly unreadable.
+    """
+    path = Path(path)
+    suffix, gz = _suffix(path)
+    state = state if state is not None else ReadState(path, suffix)
+    if not path.exists():
+        raise DecodeError(f"{path}: no such log file")
+    if path.is_dir():
+        raise DecodeError(f"{path}: is a directory, expected a CAN log")
+    cls = can.io.MESSAGE_READERS.get(suffix)
+    if cls is None or suffix == ".db":
+        raise DecodeError(
+            f"{path}: unknown log format '{suffix or path.name}' (python-can reads {', '.join(LOG_SUFFIXES)})"
+        )
+    state.size = path.stat().st_size
+    if issubclass(cls, TextIOMessageReader):
+        yield from _iter_text(path, cls, gz, state)
+    else:
+        yield from _iter_binary(path, cls, gz, state)
+
+
+def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[can.Message]:
+    opener = (lambda: gzip.open(path, "rt", encoding="utf-8", errors="replace")) if gz else \
+        (lambda: open(path, "r", encoding="utf-8", errors="replace", newline=None))
+    with opener() as f:
+        feed = _Lines(f)
+        state.position = (lambda: feed.chars) if not gz else None
+        first = True
+        last_fail = -1
+        header: list[str] = []
+        while True:
+            try:
+                reader = cls(feed)
+                it = iter(reader)
+                if first:
+                    msg = next(it)  # the header is every line consumed before this message's line
+                    feed.recording = False
+                    header = feed.recorded[:-1]
+                    first = False
+                    yield msg
+                yield from it
+                return
+            except StopIteration:
+                return
+            except (EOFError, OSError, gzip.BadGzipFile) as e:  # the file itself broke off
+                state.complete = False
+                state.problem(f"line {feed.line_no}: file read failed: {type(e).__name__}: {e}")
+                return
+            except Exception as e:  # noqa: BLE001 - python-can's text parsers raise many types
+                state.bad_lines += 1
+                if state.bad_lines <= 5:
+                    state.problem(f"line {feed.line_no}: unreadable {path.suffix} line skipped: "
+                                  f"{type(e).__name__}: {e}")
+                if state.bad_lines > 50 and state.bad_lines > _MAX_BAD_LINES_FRACTION * max(feed.line_no, 1):
+                    raise DecodeError(
+                        f"{path}: line {feed.line_no}: not a readable {path.suffix} log "
+                        f"({state.bad_lines} of {feed.line_no} lines unreadable; first: "
+                        f"{state.problems[0] if state.problems else type(e).__name__})"
+                    ) from None
+                if first:
+                    feed.recording = False
+                    header = feed.recorded[:-1]
+                    first = False
+                if feed.line_no == last_fail:
+                    raise DecodeError(f"{path}: line {feed.line_no}: not a readable {path.suffix} log: "
+                                      f"{type(e).__name__}: {e}") from None
+                last_fail = feed.line_no
+                feed.replay = deque(header)
+
+
+def _iter_binary(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[can.Message]:
+    fmt = path.suffix.upper().lstrip(".")
+    try:
+        reader = cls(gzip.open(path, "rb")) if gz else cls(path)
+    except Exception as e:  # noqa: BLE001 - python-can/asammdf raise many types on garbage
+        raise DecodeError(f"{path}: not a readable {fmt} log: {type(e).__name__}: {' '.join(str(e).split())[:200]}") \
+            from None
+    f = getattr(reader, "file", None)
+    if f is not None and hasattr(f, "tell") and not gz:
+        state.position = f.tell
+    try:
+        try:
+            yield from reader
+        except Exception as e:  # noqa: BLE001
+            state.complete = False
+            state.problem(f"reading stopped after {state.messages} messages: {type(e).__name__}: "
+                          f"{' '.join(str(e).split())[:200] or 'corrupt data'}")
+        announced = getattr(reader, "file_size", None)
+        if isinstance(announced, int) and announced > (state.size or 0) and not gz:
+            state.complete = False
+            state.problem(f"file has {state.size} bytes but its {fmt} header says {announced}: truncated")
+    finally:
+        try:
+            reader.stop()
+        except Exception:  # noqa: BLE001 - closing a half-read file must not hide the real outcome
+            pass
+
+
+@dataclass
+class _Packed:
+    """Mapped frames in file order, packed from message batches."""
+
+    t: list = field(default_factory=list)
+    aid: list = field(default_factory=list)
+    flags: list = field(default_factory=list)
+    chan: list = field(default_factory=list)
+    length: list = field(default_factory=list)
+    data: list = field(default_factory=list)
+
+
+_ERR, _EXT, _RTR = 1, 2, 4
+
+
+def _pack(hits: list, width: int, chan_codes: dict, out: _Packed) -> None:
+    n = len(hits)
+    out.t.append(np.fromiter((m.timestamp for m in hits), dtype=np.float64, count=n))
+    out.aid.append(np.fromiter((m.arbitration_id for m in hits), dtype=np.int64, count=n))
+    out.flags.append(np.fromiter(
+        (m.is_error_frame | (m.is_extended_id << 1) | (m.is_remote_frame << 2) for m in hits),
+        dtype=np.int8, count=n))
+    setdefault = chan_codes.setdefault
+    out.chan.append(np.fromiter((setdefault(m.channel, len(chan_codes)) for m in hits), dtype=np.int32, count=n))
+    lengths = np.fromiter((len(m.data) for m in hits), dtype=np.int64, count=n)
+    out.length.append(lengths)
+    mat = np.zeros((n, width), dtype=np.uint8)
+    if n and np.all(lengths == width):
+        mat[:] = np.frombuffer(b"".join([bytes(m.data) for m in hits]), dtype=np.uint8).reshape(n, width)
+    else:
+        for i, m in enumerate(hits):
+            d = bytes(m.data[:width])
+            if d:
+                mat[i, :len(d)] = np.frombuffer(d, dtype=np.uint8)
+    out.data.append(mat)
+
+
+def read_log(path: str | Path, mapping: CanMapping, mount: ImuMount, *, progress: bool = False,
+             db: Any | None = None) -> tuple[pd.DataFrame, Summary]:
+    """Decode the IMU channels of a CAN log into the vehicle-frame IMU table.
+
+    Parameters
+    ----------
+    path : str or Path
+        CAN log, any format python-can reads (``.asc .blf .csv .log .trc .mf4``).
+    mapping : CanMapping
+        ``[can]``: DBC, signal mapping, unit overrides, gap limit, alignment window.
+    mount : ImuMount
+        ``[imu]``: axes (IMU to vehicle frame). The lever arm is not applied here.
+    progress : bool
+        Show a tqdm progress bar on stderr.
+    db : cantools Database, optional
+        Use this database instead of loading ``mapping.dbc_path``.
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        One row per sample of the clock message: ``t_s`` (log clock, s), ``gyro_[xyz]_rad_s``,
+        ``accel_[xyz]_m_s2`` (vehicle frame, at the IMU), ``speed_m_s`` and a boolean
+        ``fresh_<channel>`` per channel. ``attrs`` holds ``unavailable`` (value columns no
+        mapped signal feeds: all NaN), ``channels``, ``imu_axes``, ``imu_position_m``, ``gaps``,
+        ``complete`` and ``summary`` (JSON types).
+    summary : Summary
+
+    Raises
+    ------
+    ImuConfigError
+        Mapping does not match the DBC, or ``align_window_s`` is too long for the IMU rate.
+    DecodeError
+        Unreadable DBC or log, no frame of the clock message, a mapped ID on two bus channels
+        without ``[can] channel``, or a clock running backwards.
+    """
+    path = Path(path)
+    plan = resolve(mapping, db)
+    state = ReadState(path, _suffix(path)[0])
+    mapped_ids = plan.mapped_ids
+    known = plan.known_ids
+    width = max(dlc2len(len2dlc(s.length)) for s in plan.sources)
+    packed = _Packed()
+    chan_codes: dict = {}
+    unknown: list[int] = []
+    error_frames = 0
+    n_read = 0
+    bar = _progress_bar(path, state) if progress else None
+    with _quiet_readers(state):
+        it = iter_messages(path, state)
+        while True:
+            batch = list(islice(it, _BATCH))
+            if not batch:
+                break
+            hits = []
+            hit = hits.append
+            for msg in batch:
+                aid = msg.arbitration_id
+                if aid in mapped_ids:
+                    hit(msg)
+                elif aid not in known:
+                    if msg.is_error_frame:
+                        error_frames += 1
+                    else:
+                        unknown.append(aid)
+            n_read += len(batch)
+            state.messages = n_read
+            if hits:
+                _pack(hits, width, chan_codes, packed)
+            if bar is not None:
+                _advance(bar, state)
+    if bar is not None:
+        bar.close()
+    if n_read == 0:
+        detail = f": {state.problems[0]}" if state.problems else ""
+        raise DecodeError(f"{path}: no CAN frames in the log{detail}")
+    return _finish(path, plan, mount, packed, chan_codes, unknown, error_frames, n_read, state)
+
+
+def _progress_bar(path: Path, state: ReadState) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=None, unit="B", unit_scale=True, desc=path.name, leave=False, mininterval=0.2)
+
+
+def _advance(bar: Any, state: ReadState) -> None:
+    if state.position is not None and state.size:
+        if bar.total is None:
+            bar.total = state.size
+        try:
+            pos = int(state.position())
+        except (OSError, ValueError):
+            return
+        bar.update(max(0, min(pos, state.size) - bar.n))
+    else:
+        bar.unit = "frame"
+        bar.update(_BATCH)
+
+
+def _finish(path: Path, plan: DecodePlan, mount: ImuMount, packed: _Packed, chan_codes: dict,
+            unknown: list[int], error_frames: int, n_read: int, state: ReadState) -> tuple[pd.DataFrame, Summary]:
+    mapping = plan.mapping
+    width = max(dlc2len(len2dlc(s.length)) for s in plan.sources)
+    if packed.t:
+        t = np.concatenate(packed.t)
+        aid = np.concatenate(packed.aid)
+        flags = np.concatenate(packed.flags)
+        chan = np.concatenate(packed.chan)
+        length = np.concatenate(packed.length)
+        data = np.concatenate(packed.data)
+    else:
+        t = np.empty(0)
+        aid = np.empty(0, np.int64)
+        flags = np.empty(0, np.int8)
+        chan = np.empty(0, np.int32)
+        length = np.empty(0, np.int64)
+        data = np.empty((0, width), np.uint8)
+    n = len(t)
+    keep = np.ones(n, dtype=bool)
+    per_msg: dict[int, dict[str, int]] = {}
+    msg_of = {}
+    for s in plan.sources:
+        msg_of.setdefault(s.frame_id, s)
+
+    def count(mask: np.ndarray, key: str) -> None:
+        for fid in np.unique(aid[mask]):
+            per_msg.setdefault(int(fid), {})[key] = int(np.count_nonzero(mask & (aid == fid)))
+
+    is_err = (flags & _ERR) != 0
+    unmapped_frames = n_read - n - len(unknown) - error_frames
+    error_frames += int(np.count_nonzero(is_err))
+    keep &= ~is_err
+    want_ext = np.zeros(n, dtype=bool)
+    for fid, s in msg_of.items():
+        want_ext[aid == fid] = s.is_extended
+    other_ext = keep & (((flags & _EXT) != 0) != want_ext)
+    unknown_ext = [(int(a), bool(e)) for a, e in zip(aid[other_ext], (flags[other_ext] & _EXT) != 0)]
+    keep &= ~other_ext
+    names_of_code = {code: ch for ch, code in chan_codes.items()}
+    if mapping.channel is not None:
+        wanted = {code for ch, code in chan_codes.items() if str(ch) == str(mapping.channel)}
+        other = keep & ~np.isin(chan, list(wanted))
+        count(other, "other_channel")
+        keep &= ~other
+    else:
+        for fid, s in msg_of.items():
+            codes = np.unique(chan[keep & (aid == fid)])
+            if len(codes) > 1:
+                shown = ", ".join(repr(names_of_code[int(c)]) for c in codes[:4])
+                raise DecodeError(
+                    f"{path}: frame {s.id_text} ({s.message.name}) appears on bus channels {shown}; "
+                    f"set [can] channel to the one the IMU is on"
+                )
+    remote = keep & ((flags & _RTR) != 0)
+    count(remote, "remote")
+    keep &= ~remote
+    bad_t = keep & ~(np.isfinite(t) & (np.abs(t) < 1e12))
+    count(bad_t, "bad_timestamp")
+    keep &= ~bad_t
+    msg_len = np.zeros(n, dtype=np.int64)
+    for fid, s in msg_of.items():
+        msg_len[aid == fid] = s.length
+    short = keep & (length < msg_len)
+    if mapping.pad_short_frames:
+        count(short, "padded")
+    else:
+        count(short, "wrong_length")
+        keep &= ~short
+    count(keep & (length > msg_len), "excess_length")
+    # backwards: earlier than an already accepted mapped frame (dropped frames never raise the max)
+    idx = np.flatnonzero(keep)
+    if len(idx):
+        tk = t[idx]
+        prev_max = np.maximum.accumulate(np.concatenate(([-np.inf], tk[:-1])))
+        back = idx[tk < prev_max]
+        if len(back):
+            bmask = np.zeros(n, dtype=bool)
+            bmask[back] = True
+            count(bmask, "backwards")
+            keep[back] = False
+            if len(back) > 10 and len(back) > _MAX_BACKWARDS_FRACTION * len(idx):
+                i0 = int(back[0])
+                jump = float(prev_max[np.searchsorted(idx, i0)] - t[i0])
+                raise DecodeError(
+                    f"{path}: timestamps run backwards for {len(back)} of {len(idx)} mapped frames, first at "
+                    f"frame 0x{int(aid[i0]):X} t={t[i0]:.6f} s ({jump:.6f} s back): not one continuous recording"
+                )
+    # decode per source, drop duplicates, align
+    frames: list[SourceFrames] = []
+    stats_raw = []
+    for si, s in enumerate(plan.sources):
+        rows = np.flatnonzero(keep & (aid == s.frame_id))
+        vals = decode_source(data[rows, :s.length] if len(rows) else np.zeros((0, s.length), np.uint8),
+                             s, mapping.range_check)
+        pres = vals.present
+        rows_p = rows[pres]
+        tp = t[rows_p]
+        dup = np.concatenate(([False], tp[1:] == tp[:-1])) if len(tp) else np.zeros(0, bool)
+        ok = ~dup
+        frames.append(SourceFrames(t_s=tp[ok], si=vals.si[pres][ok], valid=vals.valid[pres][ok],
+                                   channels=tuple(p.channel for p in s.signals)))
+        stats_raw.append((int(np.count_nonzero(dup)), vals))
+    period = median_period_s(frames[plan.clock].t_s)
+    if math.isfinite(period) and mapping.align_window_s >= 0.5 * period and len(plan.sources) > 1:
+        raise ImuConfigError(
+            f"[can] align_window_s = {mapping.align_window_s} s is not less than half the "
+            f"{plan.sources[plan.clock].name} period ({1e3 * period:.3f} ms): lower it"
+        )
+    if len(frames[plan.clock].t_s) == 0:
+        clock = plan.sources[plan.clock]
+        why = "; ".join(f"{k} {v}" for k, v in per_msg.get(clock.frame_id, {}).items())
+        raise DecodeError(
+            f"{path}: no usable frame of {clock.name} ({clock.id_text}), the IMU clock message, among "
+            f"{n_read} frames" + (f" ({why})" if why else "") + (f"; {state.problems[0]}" if state.problems else "")
+        )
+    columns, unaligned = align(frames, plan.clock, mapping.align_window_s, mapping.gap_limit_s, mount)
+    summary = _summary(path, plan, mount, frames, stats_raw, per_msg, unaligned, unknown, unknown_ext,
+                       error_frames, unmapped_frames, n_read, n, state, columns)
+    attrs = table_attrs(plan, mount, summary)
+    return make_frame(columns, attrs), summary
+
+
+def _summary(path, plan, mount, frames, stats_raw, per_msg, unaligned, unknown, unknown_ext, error_frames,
+             unmapped_frames, n_read, n_mapped, state, columns) -> Summary:
+    mapping = plan.mapping
+    sources = []
+    first_of_msg: set[int] = set()
+    for si, s in enumerate(plan.sources):
+        fr = frames[si]
+        counts = per_msg.get(s.frame_id, {}) if s.frame_id not in first_of_msg else {}
+        first_of_msg.add(s.frame_id)
+        dups, _ = stats_raw[si]
+        sources.append(SourceStats(
+            name=s.name, frame_id=s.id_text, frames=len(fr.t_s), rate_hz=rate_hz(fr.t_s),
+            duplicates=dups, unaligned=unaligned[si], gaps=find_gaps(s.name, fr.t_s, mapping.gap_limit_s),
+            **{k: v for k, v in counts.items()},
+        ))
+    channels = []
+    value_col = dict(zip(CHANNELS, VALUE_COLUMNS))
+    col_of = {ich: value_col[vch] for vch, ich, _ in vehicle_channel_map(mount)}
+    for si, s in enumerate(plan.sources):
+        fr = frames[si]
+        _, vals = stats_raw[si]
+        for j, p in enumerate(s.signals):
+            v = fr.valid[:, j]
+            channels.append(ChannelStats(
+                channel=p.channel, column=col_of[p.channel], ref=p.ref, unit=p.unit,
+                decoded=int(np.count_nonzero(v)), invalid=int(np.count_nonzero(~v)),
+                out_of_range=int(vals.out_of_range[j]), rate_hz=rate_hz(fr.t_s[v]),
+            ))
+    unk: dict[str, int] = {}
+    if unknown:
+        ids, cnt = np.unique(np.asarray(unknown, dtype=np.int64), return_counts=True)
+        unk = {f"0x{int(i):X}": int(c) for i, c in zip(ids, cnt)}
+    for a, e in unknown_ext:
+        key = f"0x{a:X}" + ("x" if e else " (standard)")
+        unk[key] = unk.get(key, 0) + 1
+    T = columns["t_s"]
+    return Summary(
+        log=str(path), frames_read=n_read, frames_mapped=n_mapped, samples=len(T),
+        duration_s=float(T[-1] - T[0]) if len(T) else 0.0, sample_rate_hz=rate_hz(T),
+        clock=plan.sources[plan.clock].name, sources=tuple(sources), channels=tuple(channels),
+        unavailable=unavailable_channels(mapping.signals, mount), unknown_ids=unk,
+        unmapped_frames=unmapped_frames,
+        error_frames=error_frames, bad_lines=state.bad_lines, reader_warnings=state.warnings,
+        problems=tuple(state.problems), complete=state.complete,
+    )
+
+
+def table_attrs(plan: DecodePlan, mount: ImuMount, summary: Summary) -> dict[str, Any]:
+    """``DataFrame.attrs`` of the IMU table (JSON types, so parquet keeps them)."""
+    mapping = plan.mapping
+    by_col: dict[str, Any] = {}
+    plans = plan.channel_plans
+    col_of = dict(zip(CHANNELS, VALUE_COLUMNS))
+    for vch, ich, sign in vehicle_channel_map(mount):
+        if ich in plans:
+            p = plans[ich][1]
+            by_col[col_of[vch]] = f"{'-' if sign < 0 else ''}{p.ref} [{p.unit}]"
+        else:
+            by_col[col_of[vch]] = None
+    return {
+        "source": summary.log,
+        "clock": summary.clock,
+        "channels": by_col,
+        "unavailable": list(summary.unavailable),
+        "imu_axes": list(mount.axes),
+        "imu_position_m": list(mount.position_m),
+        "gap_limit_s": mapping.gap_limit_s,
+        "align_window_s": mapping.align_window_s,
+        "gaps": [[g.source, g.start_s, g.duration_s] for g in summary.gaps],
+        "complete": summary.complete,
+        "summary": summary.as_dict(),
+    }
+
