@@ -25,11 +25,10 @@ from dataclasses import dataclass, field
 from typing import Any, Iterator
 
 import can
-import numpy as np
 
 from .config import ACCEL, CHANNELS, GYRO, CanMapping, ImuMount
 from .dbc import DecodePlan, resolve
-from .decode import decode_source
+from .decode import decode_frame
 from .samples import (
     VALUE_COLUMNS, ChannelStats, Gap, ImuSample, SourceStats, Summary, unavailable_channels,
     vehicle_channel_map,
@@ -174,15 +173,12 @@ class StreamDecoder:
             counts["backwards"] = counts.get("backwards", 0) + 1
             return []
         self._last_t = t
-        row = np.zeros((1, length), dtype=np.uint8)
-        d = data[:length]
-        if d:
-            row[0, :len(d)] = np.frombuffer(d, dtype=np.uint8)
+        payload = data[:length].ljust(length, b"\0")
         out: list[ImuSample] = []
         for si in idx:
             src = self.plan.sources[si]
-            vals = decode_source(row, src, self.mapping.range_check)
-            if not vals.present[0]:
+            present, si_row, valid_row, oor, _ = decode_frame(payload, src, self.mapping.range_check)
+            if not present:
                 continue
             sc = self._src[si]
             if t == sc.last_t:
@@ -195,17 +191,17 @@ class StreamDecoder:
             sc.frames += 1
             sc.last_t = t
             for j, p in enumerate(src.signals):
-                key = "valid" if vals.valid[0, j] else "invalid"
+                key = "valid" if valid_row[j] else "invalid"
                 getattr(sc, key)[p.channel] = getattr(sc, key).get(p.channel, 0) + 1
-                sc.out_of_range[p.channel] = sc.out_of_range.get(p.channel, 0) + int(vals.out_of_range[j])
-            out.extend(self._event(si, t, vals.si[0], vals.valid[0], received_s))
+                sc.out_of_range[p.channel] = sc.out_of_range.get(p.channel, 0) + oor[j]
+            out.extend(self._event(si, t, si_row, valid_row, received_s))
         return out
 
     # --- alignment (same rule as imu.samples.align) ------------------------------------------
-    def _event(self, si: int, t: float, si_row: np.ndarray, valid_row: np.ndarray,
+    def _event(self, si: int, t: float, si_row: list, valid_row: list,
                received_s: float) -> list[ImuSample]:
         w = self.window_s
-        out = self._close_before(t - w)
+        out = self._close_before(t - w, received_s)
         src = self.plan.sources[si]
         imu = [(p.channel, float(si_row[j]), bool(valid_row[j])) for j, p in enumerate(src.signals)
                if p.channel in _IMU]
@@ -233,7 +229,7 @@ class StreamDecoder:
             else:
                 self._join(g, si, imu)
         while self._open and self._open[0].sources >= self._imu_sources:
-            out.append(self._emit(self._open.popleft()))
+            out.append(self._emit(self._open.popleft(), received_s))
         return out
 
     @staticmethod
@@ -242,18 +238,19 @@ class StreamDecoder:
         for ch, v, ok in imu:
             g.values[ch] = (v, ok)
 
-    def _close_before(self, t_limit: float) -> list[ImuSample]:
+    def _close_before(self, t_limit: float, received_s: float) -> list[ImuSample]:
         """Emit samples no frame at or after ``t_limit + window`` can join; expire pending frames."""
         out = []
         while self._open and self._open[0].t_s < t_limit:
-            out.append(self._emit(self._open.popleft()))
+            out.append(self._emit(self._open.popleft(), received_s))
         while self._refs and self._refs[0].t_s < t_limit and self._refs[0].emitted:
             self._refs.popleft()
         while self._pending and self._pending[0][0] < t_limit:
             self._src[self._pending.popleft()[1]].unaligned += 1
         return out
 
-    def _emit(self, g: _Group) -> ImuSample:
+    def _emit(self, g: _Group, released_s: float) -> ImuSample:
+        """The sample of group ``g``; ``released_s`` is when the frame that released it arrived."""
         g.emitted = True
         T = g.t_s
         # speed: latest valid speed frame before T, if not older than gap_limit_s
@@ -280,7 +277,7 @@ class StreamDecoder:
         if self.samples == 1:
             self._first_sample_t = T
         self._last_sample_t = T
-        return ImuSample(received_s=g.received_s, **vals)
+        return ImuSample(received_s=released_s, **vals)
 
     def expire(self, now_s: float | None = None, margin_s: float = 0.002) -> list[ImuSample]:
         """On a quiet bus: emit samples whose clock frame arrived more than window + margin ago.
@@ -290,12 +287,13 @@ class StreamDecoder:
         now_s = time.perf_counter() if now_s is None else now_s
         out = []
         while self._open and now_s - self._open[0].received_s > self.window_s + margin_s:
-            out.append(self._emit(self._open.popleft()))
+            out.append(self._emit(self._open.popleft(), now_s))
         return out
 
     def flush(self) -> list[ImuSample]:
         """End of stream: emit every open sample; pending frames are unaligned."""
-        out = [self._emit(g) for g in self._open]
+        now_s = time.perf_counter()
+        out = [self._emit(g, now_s) for g in self._open]
         self._open.clear()
         for _, sp, _ in self._pending:
             self._src[sp].unaligned += 1

@@ -14,6 +14,8 @@ starts at its most significant bit in the same "sawtooth" numbering, whose netwo
 
 from __future__ import annotations
 
+import math
+import struct
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -21,7 +23,10 @@ import numpy as np
 
 from .dbc import MuxCondition, SourcePlan
 
-__all__ = ["frames_matrix", "extract_raw", "physical", "mux_present", "SourceValues", "decode_source"]
+__all__ = [
+    "frames_matrix", "extract_raw", "physical", "mux_present", "SourceValues", "decode_source",
+    "raw_scalar", "physical_scalar", "decode_frame",
+]
 
 _U64 = np.uint64
 
@@ -196,3 +201,59 @@ def decode_source(data: np.ndarray, src: SourcePlan, range_check: bool) -> Sourc
         valid[:, j] = ok & present
         si[:, j] = np.where(valid[:, j], phys * plan.factor_si, np.nan)
     return SourceValues(present=present, si=si, valid=valid, out_of_range=oor, raw_invalid=rinv)
+
+
+# --- scalar twin for the live path -----------------------------------------------------------
+# One frame at a time the numpy path costs ~100 us in array overheads; these functions do the same
+# arithmetic on Python ints and floats (the same IEEE-754 double operations, so identical results,
+# checked in tests/test_imu_decode.py) in a few microseconds.
+
+def raw_scalar(payload: bytes, sig: Any) -> int:
+    """Raw unsigned bits of ``sig`` from one payload (at least the message length)."""
+    length = int(sig.length)
+    first, last = _bit_span(sig)
+    if sig.byte_order == "little_endian":
+        word = int.from_bytes(payload, "little")
+        return (word >> first) & ((1 << length) - 1)
+    word = int.from_bytes(payload, "big")
+    return (word >> (8 * len(payload) - 1 - last)) & ((1 << length) - 1)
+
+
+def physical_scalar(payload: bytes, sig: Any) -> float:
+    """:func:`physical` for one payload."""
+    raw = raw_scalar(payload, sig)
+    length = int(sig.length)
+    if sig.is_float:
+        fmt = {16: ">e", 32: ">f", 64: ">d"}[length]
+        value = struct.unpack(fmt, raw.to_bytes(length // 8, "big"))[0]
+    elif sig.is_signed and raw >> (length - 1):
+        value = float(raw - (1 << length))
+    else:
+        value = float(raw)
+    conv = sig.conversion
+    return value * float(conv.scale) + float(conv.offset)
+
+
+def decode_frame(payload: bytes, src: SourcePlan, range_check: bool) -> tuple[bool, list, list, list, list]:
+    """:func:`decode_source` for one payload (padded to the message length).
+
+    Returns ``(present, si, valid, out_of_range, raw_invalid)``, the last four per signal.
+    """
+    for cond in src.mux:
+        v = physical_scalar(payload, cond.signal)
+        if not math.isfinite(v) or int(v) not in cond.ids:
+            return False, [], [], [], []
+    si, valid, oor, rinv = [], [], [], []
+    for plan in src.signals:
+        phys = physical_scalar(payload, plan.signal)
+        ok = math.isfinite(phys)
+        outside = (plan.minimum is not None and plan.maximum is not None and plan.minimum < plan.maximum
+                   and (phys < plan.minimum or phys > plan.maximum))
+        raw_inv = plan.signal.raw_invalid
+        bad_raw = raw_inv is not None and raw_scalar(payload, plan.signal) == (int(raw_inv) & ((1 << 64) - 1))
+        oor.append(int(outside))
+        rinv.append(int(bad_raw))
+        ok = ok and not bad_raw and not (range_check and outside)
+        valid.append(ok)
+        si.append(phys * plan.factor_si if ok else math.nan)
+    return True, si, valid, oor, rinv

@@ -50,8 +50,8 @@ class ImuSample:
 
     ``t_s`` is the clock frame's timestamp (bus clock); rates in rad/s, specific force in m/s^2,
     speed in m/s, NaN where the channel has no valid value; ``fresh_*`` as in the table.
-    ``received_s`` is ``time.perf_counter()`` when the frame that completed the sample was
-    received (not part of the table).
+    ``received_s`` is ``time.perf_counter()`` when the frame that released the sample (the one
+    that completed it, or showed that nothing more can join) was received; not part of the table.
     """
 
     t_s: float

@@ -1,0 +1,91 @@
+"""``vifusion can LOG --config C --out imu.parquet|imu.csv``: decode the IMU channels of a CAN log.
+
+Reads ``[imu]`` and ``[can]`` (with ``[can.signals]``, optional ``[can.units]``) from the config,
+decodes the log with :func:`imu.read_log` and writes the IMU table (vehicle frame, SI units,
+``fresh_*`` flags). The output is written under a temporary name and renamed when complete. A log
+whose reading stopped early (truncated or corrupt binary file) is an error unless ``--partial``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import time
+from pathlib import Path
+
+from imu import read_log
+
+from ..config import Table, parse_can, parse_imu, read_toml
+from ..errors import ConfigError, InputError
+
+OUT_SUFFIXES = (".parquet", ".csv")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "can",
+        help="decode IMU rates, accelerations and speed from a CAN log into a table",
+        description="Decode the IMU channels of a CAN log (.asc .blf .log .trc .csv .mf4) with the DBC "
+        "and [can.signals] of a config, into a parquet or CSV table in the vehicle frame.",
+    )
+    p.add_argument("log", help="CAN log file")
+    p.add_argument("--config", required=True, help="config TOML with [imu], [can] and [can.signals]")
+    p.add_argument("--out", required=True, help="output table: .parquet or .csv")
+    p.add_argument("--dbc", default=None, help="DBC to use instead of [can] dbc")
+    p.add_argument("--partial", action="store_true",
+                   help="write the table even if the log breaks off (truncated file); it is marked incomplete")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def load_can_config(path: str | Path):
+    """``[imu]`` and ``[can]`` of a config file (the other tables are not needed here)."""
+    path = Path(path)
+    data = read_toml(path)
+    if "can" not in data:
+        raise ConfigError(f"{path}: [can] is missing (vifusion can needs [can] dbc and [can.signals])")
+    mount = parse_imu(Table(data.get("imu", {}), "imu", str(path)))
+    mapping = parse_can(Table(data["can"], "can", str(path)), path.parent)
+    return mount, mapping
+
+
+def run(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if out.suffix.lower() not in OUT_SUFFIXES:
+        raise InputError(f"{out}: output must end in {' or '.join(OUT_SUFFIXES)}")
+    if out.is_dir():
+        raise InputError(f"{out}: is a directory, expected a file name")
+    mount, mapping = load_can_config(args.config)
+    if args.dbc is not None:
+        mapping = dataclasses.replace(mapping, dbc_path=Path(args.dbc))
+    t0 = time.perf_counter()
+    table, summary = read_log(args.log, mapping, mount, progress=not args.quiet)
+    elapsed = time.perf_counter() - t0
+    for line in summary.lines():
+        print(line)
+    print(f"decoded in {elapsed:.2f} s ({summary.frames_read / max(elapsed, 1e-9):,.0f} frames/s)")
+    if not summary.complete and not args.partial:
+        why = summary.problems[0] if summary.problems else "reading stopped early"
+        raise InputError(f"{args.log}: {why}; nothing written (--partial writes the {summary.samples} samples read)")
+    if not summary.complete:
+        print(f"warning: {args.log}: reading stopped early; {out} holds the first {summary.samples} samples "
+              f"and is marked complete=false", file=sys.stderr)
+    _write_atomic(table, out)
+    print(f"wrote {out} ({len(table)} rows)")
+    return 0
+
+
+def _write_atomic(table, out: Path) -> None:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.partial-{os.getpid()}")
+    try:
+        if out.suffix.lower() == ".parquet":
+            table.to_parquet(tmp, index=False)  # pandas keeps table.attrs (summary, unavailable) in it
+        else:
+            table.to_csv(tmp, index=False)
+        os.replace(tmp, out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

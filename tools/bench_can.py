@@ -1,0 +1,107 @@
+"""Benchmark: frames per second from a 1-million-frame BLF log to the IMU DataFrame.
+
+Usage::
+
+    .venv/bin/python tools/bench_can.py [--frames 1000000] [--repeats 3] [--file /tmp/bench.blf]
+
+Builds the log once with the simulator's CAN writer (IMU at 100 Hz, wheel speed at 50 Hz and the
+extra traffic of ``tools/drivesim/canlog.py``: about 390 frames per second of drive, 1 in 2 mapped)
+and caches it. Then, in one process on one core, alternates python-can's bare ``BLFReader``
+iteration (the floor: no decoding at all) and :func:`imu.read_log` end to end, and prints the
+median of the repeats and their ratio. The first read of each kind warms the page cache and is
+not counted.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import can  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+
+from drivesim.canlog import DBC_PATH, signal_map, write_can_log  # noqa: E402
+from imu import CanMapping, ImuMount, read_log  # noqa: E402
+
+#: Frames per second of drive written by write_can_log with extra traffic (IMU 2 x 100, ABS 50,
+#: ENGINE_1 100, ENGINE_2/DASH/CCVS1/NM 4 x 10, TPMS 2).
+FRAMES_PER_S = 392.0
+
+
+def build(path: Path, n_frames: int) -> None:
+    duration_s = n_frames / FRAMES_PER_S
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, duration_s, 0.01)
+    w = 2 * np.pi * 0.2
+    imu = pd.DataFrame({
+        "t_s": t,
+        "gyro_x_rad_s": 0.3 * np.cos(w * t) + rng.normal(0, 0.002, len(t)),
+        "gyro_y_rad_s": rng.normal(0, 0.002, len(t)),
+        "gyro_z_rad_s": 0.2 * np.sin(w * t) + rng.normal(0, 0.002, len(t)),
+        "accel_x_m_s2": rng.normal(0, 0.05, len(t)),
+        "accel_y_m_s2": 3.0 * np.sin(w * t) + rng.normal(0, 0.05, len(t)),
+        "accel_z_m_s2": -9.81 + rng.normal(0, 0.05, len(t)),
+    })
+    ts = np.arange(0.004, duration_s, 0.02)
+    speed = pd.DataFrame({"t_s": ts, "speed_m_s": 20.0 + 2.0 * np.sin(0.05 * ts)})
+    print(f"building {path} ({duration_s:.0f} s of drive) ...", flush=True)
+    write_can_log(path, imu, speed)
+
+
+def bare(path: Path) -> tuple[int, float]:
+    t0 = time.perf_counter()
+    n = 0
+    for _ in can.BLFReader(path):
+        n += 1
+    return n, time.perf_counter() - t0
+
+
+def full(path: Path, mapping: CanMapping, mount: ImuMount) -> tuple[int, float, int]:
+    t0 = time.perf_counter()
+    table, summary = read_log(path, mapping, mount)
+    return summary.frames_read, time.perf_counter() - t0, len(table)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=1_000_000)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--file", type=Path, default=None)
+    args = ap.parse_args(argv)
+    path = args.file or Path(os.environ.get("TMPDIR", "/tmp")) / f"vifusion_bench_{args.frames}.blf"
+    if not path.exists():
+        build(path, args.frames)
+    mapping = CanMapping(DBC_PATH, signal_map())
+    mount = ImuMount(("x", "-y", "-z"), (0.0, 0.0, 0.5))
+    bare(path)
+    full(path, mapping, mount)
+    bare_rates, full_rates = [], []
+    for _ in range(args.repeats):
+        n, dt = bare(path)
+        bare_rates.append(n / dt)
+        n2, dt2, rows = full(path, mapping, mount)
+        full_rates.append(n2 / dt2)
+    b, f = statistics.median(bare_rates), statistics.median(full_rates)
+    print(f"file: {path} ({path.stat().st_size / 1e6:.1f} MB, {n} frames, {rows} IMU samples)")
+    print(f"{'measurement':<44} {'frames/s (median of ' + str(args.repeats) + ')':>26}")
+    print(f"{'python-can BLFReader, bare iteration':<44} {b:>26,.0f}")
+    print(f"{'imu.read_log, BLF to DataFrame (end to end)':<44} {f:>26,.0f}")
+    print(f"{'ratio end-to-end / bare reader':<44} {f / b:>26.2f}")
+    print(f"{'target (issue 4)':<44} {150_000:>26,}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
