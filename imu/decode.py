@@ -116,12 +116,13 @@ def physical(data: np.ndarray, sig: Any) -> np.ndarray:
     raw = extract_raw(data, sig)
     length = int(sig.length)
     if sig.is_float:
-        if length == 64:
-            value = raw.view(np.float64)
-        elif length == 32:
-            value = raw.astype(np.uint32).view(np.float32).astype(np.float64)
-        else:
-            value = raw.astype(np.uint16).view(np.float16).astype(np.float64)
+        with np.errstate(invalid="ignore"):  # signalling NaNs in the payload are just NaN here
+            if length == 64:
+                value = raw.view(np.float64)
+            elif length == 32:
+                value = raw.astype(np.uint32).view(np.float32).astype(np.float64)
+            else:
+                value = raw.astype(np.uint16).view(np.float16).astype(np.float64)
     elif sig.is_signed:
         if length == 64:
             value = raw.view(np.int64).astype(np.float64)
