@@ -143,6 +143,17 @@ def _quiet_readers(state: ReadState) -> Iterator[None]:
             lg.propagate = prop
 
 
+@contextmanager
+def _quiet_unraisable() -> Iterator[None]:
+    """Silence "Exception ignored in __del__" reports of half-built third-party readers."""
+    saved = sys.unraisablehook
+    sys.unraisablehook = lambda unraisable: None
+    try:
+        yield
+    finally:
+        sys.unraisablehook = saved
+
+
 def _suffix(path: Path) -> tuple[str, bool]:
     suffixes = [s.lower() for s in path.suffixes]
     if suffixes and suffixes[-1] == ".gz" and len(suffixes) >= 2:
@@ -232,11 +243,16 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
 
 def _iter_binary(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[can.Message]:
     fmt = path.suffix.upper().lstrip(".")
-    try:
-        reader = cls(gzip.open(path, "rb")) if gz else cls(path)
-    except Exception as e:  # noqa: BLE001 - python-can/asammdf raise many types on garbage
-        raise DecodeError(f"{path}: not a readable {fmt} log: {type(e).__name__}: {' '.join(str(e).split())[:200]}") \
-            from None
+    error = None
+    with _quiet_unraisable():
+        try:
+            reader = cls(gzip.open(path, "rb")) if gz else cls(path)
+        except Exception as e:  # noqa: BLE001 - python-can/asammdf raise many types on garbage
+            error = f"{path}: not a readable {fmt} log: {type(e).__name__}: {' '.join(str(e).split())[:200]}"
+        if error is not None:
+            gc.collect()  # half-built readers (asammdf's MDF4) complain in __del__: let them, quietly
+    if error is not None:
+        raise DecodeError(error)
     f = getattr(reader, "file", None)
     if f is not None and hasattr(f, "tell") and not gz:
         state.position = f.tell

@@ -105,10 +105,12 @@ def si_factor(unit: str | None, channel: str, where: str) -> float:
         )
     quantity, factor = hit
     if quantity != want:
-        raise ImuConfigError(f'{where}: unit "{unit}" is a {quantity}, but {channel} needs an {want}'
-                             if want[0] in "aeiou" else
-                             f'{where}: unit "{unit}" is a {quantity}, but {channel} needs a {want}')
+        raise ImuConfigError(f'{where}: unit "{unit}" is {_a(quantity)}, but {channel} needs {_a(want)}')
     return factor
+
+
+def _a(noun: str) -> str:
+    return ("an " if noun[0] in "aeiou" else "a ") + noun
 
 
 def _examples(quantity: str) -> list[str]:

@@ -1,0 +1,267 @@
+"""Bad input, one injected fault per test (named for what it injects): either the good part is
+decoded and the rest counted, or the read stops with one line naming the file, line or frame ID."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import can
+import numpy as np
+import pytest
+
+from drivesim.canlog import write_can_log
+from imu import CanMapping, DecodeError, ImuConfigError, read_log
+from test_imu_common import MOUNT_FRD, RES_GYRO_RAD_S, sim_imu, sim_mapping, vehicle_truth
+
+TOL_GYRO_RAD_S = RES_GYRO_RAD_S / 2 * (1 + 1e-6)  # half a raw step: the writer rounds
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    """A 3-s simulated drive as messages (exact float timestamps via .csv) and its clean decode."""
+    tmp = tmp_path_factory.mktemp("clean")
+    imu, speed = sim_imu(duration_s=3.0, seed=2)
+    path = tmp / "clean.csv"
+    offset = write_can_log(path, imu, speed, seed=2)
+    msgs = list(can.LogReader(path))
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    return imu, offset, msgs, table, summary
+
+
+def _write(msgs, path):
+    with can.Logger(path) as w:
+        for m in msgs:
+            w.on_message_received(m)
+    return path
+
+
+def _one_line(e):
+    text = str(e.value)
+    assert "\n" not in text and len(text) < 400
+    return text
+
+
+def test_WRONG_LENGTH_frames_counted_rest_decoded(tmp_path, clean):
+    imu, _, msgs, ref, _ = clean
+    bad = list(msgs)
+    n_cut = 0
+    for i, m in enumerate(bad):
+        if m.arbitration_id == 0x178 and n_cut < 7 and i % 3 == 0:
+            bad[i] = can.Message(timestamp=m.timestamp, arbitration_id=0x178, is_extended_id=False,
+                                 data=m.data[:6], channel=m.channel)
+            n_cut += 1
+    table, summary = read_log(_write(bad, tmp_path / "x.blf"), sim_mapping(), MOUNT_FRD)
+    acc = next(s for s in summary.sources if s.name == "IMU_ACC")
+    assert acc.wrong_length == n_cut == 7
+    assert (~table["fresh_accel_x"]).sum() == 7 and table["accel_x_m_s2"].isna().sum() == 7
+    assert table["fresh_gyro_x"].all() and len(table) == len(ref)
+
+
+@pytest.mark.parametrize("suffix, counted", [(".asc", False), (".log", True), (".trc", False), (".csv", True)])
+def test_CORRUPT_LINE_MIDWAY_skipped_and_counted(tmp_path, clean, suffix, counted):
+    """One garbled IMU_RATE line in the middle of a text log: that sample is lost, the reader goes on
+    after it with the header state intact, and every other sample is decoded as in the clean log.
+    candump and CSV lines that python-can cannot parse are counted as bad lines (naming the line);
+    python-can's ASC and TRC readers pass over lines they do not recognise, so there the loss shows
+    as the orphaned IMU_ACC frame, counted as unaligned."""
+    _, _, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / f"x{suffix}")
+    ref, _ = read_log(path, sim_mapping(), MOUNT_FRD)
+    lines = path.read_text().splitlines(keepends=True)
+    rate_lines = [i for i, ln in enumerate(lines) if "174" in ln]
+    victim = rate_lines[len(rate_lines) // 2]
+    lines[victim] = lines[victim].replace(" ", " zz ", 2).replace("#", "#ZZ").replace(",", ",q", 1)
+    path.write_text("".join(lines))
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    if counted:
+        assert summary.bad_lines == 1 and f"line {victim + 1}:" in summary.problems[0]
+    else:
+        assert summary.bad_lines == 0
+    assert next(s for s in summary.sources if s.name == "IMU_ACC").unaligned == 1
+    assert len(table) == len(ref) - 1, "exactly the garbled sample is missing"
+    merged = ref.merge(table, on="t_s", suffixes=("", "_got"))
+    assert len(merged) == len(table)
+    assert np.array_equal(merged["gyro_x_rad_s"], merged["gyro_x_rad_s_got"])
+    assert np.array_equal(merged["accel_y_m_s2"], merged["accel_y_m_s2_got"])
+
+
+def test_TRUNCATED_BLF_keeps_what_came_before(tmp_path, clean):
+    imu, offset, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / "x.blf")
+    ref, _ = read_log(path, sim_mapping(), MOUNT_FRD)
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * 0.6)])
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert not summary.complete and not table.attrs["complete"]
+    assert any("truncated" in p for p in summary.problems)
+    assert 0 < len(table) < len(ref)
+    n = len(table)
+    # all but possibly the last sample (its accel frame may be cut off) equal the full decode
+    assert np.array_equal(table["gyro_x_rad_s"].to_numpy()[: n - 1], ref["gyro_x_rad_s"].to_numpy()[: n - 1])
+    truth = vehicle_truth(imu, MOUNT_FRD)[:n]
+    assert np.abs(table["gyro_x_rad_s"].to_numpy() - truth[:, 0]).max() <= TOL_GYRO_RAD_S
+
+
+def test_TRUNCATED_ASC_mid_line(tmp_path, clean):
+    _, _, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / "x.asc")
+    text = path.read_text()
+    path.write_text(text[: int(len(text) * 0.5) + 7])  # ends inside a frame line
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert 100 < len(table) < 200
+    assert table.filter(like="fresh_gyro").iloc[:-1].all().all()
+
+
+def test_TIME_JUMPS_BACK_once_frame_dropped(tmp_path, clean):
+    _, _, msgs, ref, _ = clean
+    bad = list(msgs)
+    i = next(k for k in range(len(bad) // 2, len(bad)) if bad[k].arbitration_id == 0x174)
+    m = bad[i]
+    bad[i] = can.Message(timestamp=m.timestamp - 0.5, arbitration_id=m.arbitration_id, is_extended_id=False,
+                         data=m.data, channel=m.channel)
+    table, summary = read_log(_write(bad, tmp_path / "x.csv"), sim_mapping(), MOUNT_FRD)
+    rate = next(s for s in summary.sources if s.name == "IMU_RATE")
+    assert rate.backwards == 1
+    assert len(table) == len(ref) - 1
+    acc = next(s for s in summary.sources if s.name == "IMU_ACC")
+    assert acc.unaligned == 1, "its accel frame has no sample to join and is counted"
+
+
+def test_CLOCK_RESET_stops_with_one_line(tmp_path, clean):
+    _, _, msgs, _, _ = clean
+    half = len(msgs) // 2
+    bad = msgs[:half] + [can.Message(timestamp=m.timestamp - 100.0, arbitration_id=m.arbitration_id,
+                                     is_extended_id=m.is_extended_id, data=m.data, channel=m.channel)
+                         for m in msgs[half:]]
+    path = _write(bad, tmp_path / "x.csv")
+    with pytest.raises(DecodeError) as e:
+        read_log(path, sim_mapping(), MOUNT_FRD)
+    text = _one_line(e)
+    assert str(path) in text and "backwards" in text and "frame 0x" in text
+
+
+def test_DUPLICATE_FRAMES_counted_not_doubled(tmp_path, clean):
+    _, _, msgs, ref, _ = clean
+    bad = []
+    dup = 0
+    for m in msgs:
+        bad.append(m)
+        if m.arbitration_id in (0x174, 0x178) and dup < 20:
+            bad.append(m)
+            dup += 1
+    table, summary = read_log(_write(bad, tmp_path / "x.blf"), sim_mapping(), MOUNT_FRD)
+    assert sum(s.duplicates for s in summary.sources) == 20
+    assert len(table) == len(ref)
+    assert np.array_equal(table["accel_z_m_s2"], ref["accel_z_m_s2"])
+
+
+def test_GAP_reported_not_interpolated(tmp_path, clean):
+    imu, offset, msgs, ref, _ = clean
+    t0 = msgs[0].timestamp
+    lo, hi = offset + 1.0, offset + 1.5
+    bad = [m for m in msgs if not (lo <= m.timestamp < hi)]
+    table, summary = read_log(_write(bad, tmp_path / "x.blf"), sim_mapping(), MOUNT_FRD)
+    T = table["t_s"].to_numpy()
+    assert not ((T > lo) & (T < hi)).any(), "no samples invented inside the gap"
+    gaps = {g.source: g for g in summary.gaps}
+    assert set(gaps) == {"IMU_RATE", "IMU_ACC", "ABS_SPEED"}
+    assert gaps["IMU_RATE"].duration_s == pytest.approx(0.51, abs=0.011)  # 0.5 s removed + one 10-ms period
+    assert table.attrs["gaps"] and t0 > 0
+    # the first sample after the gap has no speed younger than gap_limit_s unless an ABS frame came first
+    after = np.flatnonzero(T >= hi)[0]
+    assert np.isnan(table["speed_m_s"].iloc[after]) or table["fresh_speed"].iloc[after]
+
+
+def test_OUT_OF_RANGE_and_SNA_values_are_invalid(tmp_path, clean):
+    _, _, msgs, ref, _ = clean
+    bad = list(msgs)
+    hits = 0
+    for i, m in enumerate(bad):
+        if m.arbitration_id == 0x174 and i % 5 == 0:
+            d = bytearray(m.data)
+            d[0:2] = b"\xff\xff"  # RateX raw 0xFFFF: 163.835 deg/s, outside [-163.84|163.83], the SNA value
+            bad[i] = can.Message(timestamp=m.timestamp, arbitration_id=0x174, is_extended_id=False, data=d)
+            hits += 1
+    table, summary = read_log(_write(bad, tmp_path / "x.blf"), sim_mapping(), MOUNT_FRD)
+    gx = next(c for c in summary.channels if c.channel == "gyro_x")
+    assert gx.out_of_range == hits and gx.invalid == hits
+    assert table["gyro_x_rad_s"].isna().sum() == hits == (~table["fresh_gyro_x"]).sum()
+    assert table["gyro_z_rad_s"].notna().all(), "the frame's other rates are fine"
+    kept, s2 = read_log(tmp_path / "x.blf", sim_mapping(range_check=False), MOUNT_FRD)
+    assert kept["gyro_x_rad_s"].notna().all() and s2.channels[0].out_of_range == hits
+
+
+def test_REMOTE_ERROR_and_EXTENDED_twins_are_skipped(tmp_path, clean):
+    _, _, msgs, ref, _ = clean
+    t = msgs[10].timestamp
+    extra = [can.Message(timestamp=t, arbitration_id=0x174, is_extended_id=False, is_remote_frame=True, dlc=8),
+             can.Message(timestamp=t, is_error_frame=True),
+             can.Message(timestamp=t, arbitration_id=0x174, is_extended_id=True, data=bytes(8))]
+    bad = msgs[:11] + extra + msgs[11:]
+    table, summary = read_log(_write(bad, tmp_path / "x.blf"), sim_mapping(), MOUNT_FRD)
+    assert summary.sources[0].remote == 1 and summary.error_frames == 1
+    assert summary.unknown_ids.get("0x174x") == 1
+    assert len(table) == len(ref)
+
+
+@pytest.mark.parametrize("signals, pattern", [
+    ({"gyro_z": "IMU_RATES.RateZ"}, r'no message "IMU_RATES" in the DBC \(did you mean IMU_RATE'),
+    ({"gyro_z": "IMU_RATE.RateQ"}, r'message IMU_RATE has no signal "RateQ"'),
+    ({"gyro_z": "IMU_RATE.RateZ", "speed": "IMU_RATE.RateX"}, r'unit "deg/s" is an angular rate, but speed needs a speed'),
+])
+def test_MAPPING_MISMATCH_names_the_signal(tmp_path, clean, signals, pattern):
+    _, _, msgs, _, _ = clean
+    path = _write(msgs[:50], tmp_path / "x.log")
+    mapping = dataclasses.replace(sim_mapping(), signals=signals)
+    with pytest.raises(ImuConfigError, match=pattern) as e:
+        read_log(path, mapping, MOUNT_FRD)
+    _one_line(e)
+
+
+def test_UNKNOWN_UNIT_override(tmp_path, clean):
+    _, _, msgs, _, _ = clean
+    path = _write(msgs[:50], tmp_path / "x.log")
+    m = sim_mapping()
+    mapping = CanMapping(m.dbc_path, m.signals, units={"gyro_x": "furlong/fortnight"})
+    with pytest.raises(ImuConfigError, match=r'\[can.units\] gyro_x: unknown unit "furlong/fortnight"'):
+        read_log(path, mapping, MOUNT_FRD)
+
+
+@pytest.mark.parametrize("name, content, pattern", [
+    ("garbage.blf", bytes(range(256)) * 40, r"not a readable BLF log"),
+    ("garbage.mf4", b"MDF     4.10    " + bytes(3000), r"not a readable MF4 log"),
+    ("empty.log", b"", r"no CAN frames in the log"),
+    ("text.asc", b"hello\nworld\n" * 100, r"no CAN frames in the log"),
+    ("noise.log", b"(1.0) can0 zzz#\n" * 200, r"not a readable \.log log"),
+    ("x.xyz", b"1", r"unknown log format '\.xyz'"),
+])
+def test_UNREADABLE_FILES_one_line(tmp_path, name, content, pattern):
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(DecodeError, match=pattern) as e:
+        read_log(path, sim_mapping(), MOUNT_FRD)
+    assert name in _one_line(e)
+
+
+def test_MISSING_FILES_one_line(tmp_path):
+    with pytest.raises(DecodeError, match="no such log file"):
+        read_log(tmp_path / "nope.blf", sim_mapping(), MOUNT_FRD)
+    m = dataclasses.replace(sim_mapping(), dbc_path=tmp_path / "nope.dbc")
+    (tmp_path / "x.log").write_text("(1.0) can0 174#0000000000000000\n")
+    with pytest.raises(DecodeError, match="nope.dbc: no such DBC file"):
+        read_log(tmp_path / "x.log", m, MOUNT_FRD)
+
+
+def test_NO_CLOCK_FRAMES_names_the_message(tmp_path, clean):
+    _, _, msgs, _, _ = clean
+    path = _write([m for m in msgs if m.arbitration_id != 0x174], tmp_path / "x.blf")
+    with pytest.raises(DecodeError, match=r"no usable frame of IMU_RATE \(0x174\), the IMU clock message") as e:
+        read_log(path, sim_mapping(), MOUNT_FRD)
+    _one_line(e)
+
+
+def test_ALIGN_WINDOW_TOO_LONG(tmp_path, clean):
+    _, _, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / "x.blf")
+    with pytest.raises(ImuConfigError, match=r"align_window_s = 0.006 s is not less than half the IMU_RATE period"):
+        read_log(path, sim_mapping(align_window_s=0.006), MOUNT_FRD)
