@@ -1,0 +1,114 @@
+"""Live: a sender thread plays a simulated drive onto python-can's ``virtual`` bus in real time; a
+python-can logger records the bus to a file; LiveSource reads the bus. The live samples equal the
+recorded log's samples (read_log), and each is yielded within 1 ms of the arrival of the frame that
+completed it."""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from drivesim.canlog import write_can_log
+from imu import COLUMNS, LiveSource, read_log, samples_frame
+from test_imu_common import MOUNT_FRD, RES_GYRO_RAD_S, sim_imu, sim_mapping, vehicle_truth
+
+#: Arrival-to-yield budget from issue 4.
+LATENCY_BUDGET_S = 1e-3
+
+
+def _sender(bus: can.BusABC, msgs: list[can.Message], start: threading.Event, done: threading.Event) -> None:
+    """Send each message at its (relative) log time, in real time, from its own thread."""
+    start.wait()
+    t0_wall = time.perf_counter()
+    t0_log = msgs[0].timestamp
+    for m in msgs:
+        delay = (m.timestamp - t0_log) - (time.perf_counter() - t0_wall)
+        if delay > 0:
+            time.sleep(delay)
+        bus.send(can.Message(arbitration_id=m.arbitration_id, is_extended_id=m.is_extended_id,
+                             data=m.data, dlc=m.dlc))
+    done.set()
+
+
+def test_live_virtual_bus_equals_log_path(tmp_path):
+    imu, speed = sim_imu(duration_s=2.0, seed=9)
+    drive = tmp_path / "drive.csv"
+    write_can_log(drive, imu, speed, seed=9)
+    msgs = list(can.LogReader(drive))
+    channel = f"vifusion-{uuid.uuid4().hex[:8]}"
+    record = tmp_path / "recorded.csv"  # .csv keeps the bus timestamps exactly
+    tx = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    rx = can.Bus(interface="virtual", channel=channel)
+    rec_bus = can.Bus(interface="virtual", channel=channel)
+    writer = can.Logger(record)
+    notifier = can.Notifier(rec_bus, [writer])
+    start, done = threading.Event(), threading.Event()
+    sender = threading.Thread(target=_sender, args=(tx, msgs, start, done), daemon=True)
+    source = LiveSource(rx, sim_mapping(), MOUNT_FRD, poll_s=0.005)
+    samples, latency = [], []
+    try:
+        sender.start()
+        start.set()
+        deadline = time.perf_counter() + 10.0
+        for sample in source:
+            latency.append(time.perf_counter() - sample.received_s)
+            samples.append(sample)
+            if done.is_set() and len(samples) >= len(imu) or time.perf_counter() > deadline:
+                source.stop()
+    finally:
+        sender.join(timeout=5)
+        time.sleep(0.05)  # let the recorder take the last frames
+        notifier.stop()
+        writer.stop()
+        for b in (tx, rx, rec_bus):
+            b.shutdown()
+    live = samples_frame(samples)
+    table, summary = read_log(record, sim_mapping(), MOUNT_FRD)
+    assert len(table) == len(imu) == len(live), "every IMU sample, live and recorded"
+    for c in COLUMNS:
+        x, y = table[c].to_numpy(), live[c].to_numpy()
+        assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), c
+    # and they are the drive's samples, in the vehicle frame, to half a raw step
+    truth = vehicle_truth(imu, MOUNT_FRD)
+    assert np.abs(live["gyro_x_rad_s"].to_numpy() - truth[:, 0]).max() <= RES_GYRO_RAD_S / 2 * (1 + 1e-6)
+    # the accel frame joins its rate frame's sample when the bus put it within the 2-ms window
+    # after it (the sender sleeps 350 us; a loaded machine can stretch that, which is not the
+    # reader's doing): check against the recorded bus times, frame by frame
+    rec = list(can.LogReader(record))
+    t_rate = np.array([m.timestamp for m in rec if m.arbitration_id == 0x174])
+    t_acc = np.array([m.timestamp for m in rec if m.arbitration_id == 0x178])
+    lag = t_acc - t_rate
+    assert np.array_equal(live["fresh_accel_x"].to_numpy(), (lag >= 0) & (lag <= 0.002))
+    assert np.median(lag) == pytest.approx(350e-6, abs=200e-6)
+    assert live["fresh_accel_x"].mean() > 0.9
+    lat = np.array(latency)
+    print(f"live latency arrival-to-yield: median {np.median(lat) * 1e6:.0f} us, "
+          f"p99 {np.percentile(lat, 99) * 1e6:.0f} us, max {lat.max() * 1e6:.0f} us over {len(lat)} samples")
+    assert np.percentile(lat, 99) < LATENCY_BUDGET_S
+    assert np.median(lat) < LATENCY_BUDGET_S / 5
+    assert source.summary().samples == len(samples)
+
+
+def test_quiet_bus_still_yields_incomplete_sample(tmp_path):
+    """A rate frame whose accel frame never comes is yielded once the window has passed, flagged."""
+    imu, speed = sim_imu(duration_s=0.1, seed=1)
+    drive = tmp_path / "drive.csv"
+    write_can_log(drive, imu, speed, extra_traffic=False)
+    first_rate = next(m for m in can.LogReader(drive) if m.arbitration_id == 0x174)
+    channel = f"vifusion-{uuid.uuid4().hex[:8]}"
+    with can.Bus(interface="virtual", channel=channel) as tx, can.Bus(interface="virtual", channel=channel) as rx:
+        source = LiveSource(rx, sim_mapping(), MOUNT_FRD, poll_s=0.005)
+        tx.send(can.Message(arbitration_id=0x174, is_extended_id=False, data=first_rate.data))
+        t_sent = time.perf_counter()
+        sample = next(iter(source))
+        waited = time.perf_counter() - t_sent
+    assert sample.fresh_gyro_x and not sample.fresh_accel_x and np.isnan(sample.accel_x_m_s2)
+    # window 2 ms + 2 ms margin; generous upper bound for a shared CI machine
+    assert 0.004 <= waited < 0.1
+    with pytest.raises(ValueError):
+        LiveSource(rx, sim_mapping(), MOUNT_FRD, poll_s=0)
