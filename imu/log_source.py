@@ -130,16 +130,16 @@ def _quiet_readers(state: ReadState) -> Iterator[None]:
     saved = []
     for name in ("can", "asammdf"):
         lg = logging.getLogger(name)
-        saved.append((lg, lg.propagate))
-        lg.addHandler(handler)
+        saved.append((lg, lg.propagate, list(lg.handlers)))
+        lg.handlers = [handler]  # asammdf brings its own stream handler
         lg.propagate = False
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             yield
     finally:
-        for lg, prop in saved:
-            lg.removeHandler(handler)
+        for lg, prop, handlers in saved:
+            lg.handlers = handlers
             lg.propagate = prop
 
 

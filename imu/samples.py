@@ -21,7 +21,7 @@ compensation is the filter's job (:attr:`ImuMount.position_m`).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Iterable
 
 import numpy as np
@@ -170,7 +170,10 @@ class Summary:
 
     def as_dict(self) -> dict[str, Any]:
         """Plain JSON types (for ``DataFrame.attrs`` and parquet metadata)."""
-        d = asdict(self)
+        d = {f.name: getattr(self, f.name) for f in fields(self)}
+        d["sources"] = [{**{f.name: getattr(s, f.name) for f in fields(s)},
+                         "gaps": [[g.source, g.start_s, g.duration_s] for g in s.gaps]} for s in self.sources]
+        d["channels"] = [{f.name: getattr(c, f.name) for f in fields(c)} for c in self.channels]
         d["decode_errors"] = self.decode_errors
         return _jsonable(d)
 
