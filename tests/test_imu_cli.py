@@ -1,0 +1,123 @@
+"""``vifusion can LOG --config C --out imu.parquet|csv``: the table, the printed summary, and one-line
+errors with exit status 2 that leave no output file behind."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from drivesim.canlog import DBC_PATH, signal_map, write_can_log
+from fusion.cli import main
+from test_imu_common import RES_GYRO_RAD_S, sim_imu
+
+
+def _config(tmp_path, dbc=None, extra=""):
+    signals = "\n".join(f'{k} = "{v}"' for k, v in signal_map().items())
+    path = tmp_path / "config.toml"
+    path.write_text(f"""
+[camera]
+width = 1280
+height = 720
+fx = 700.0
+
+[mount]
+height_m = 1.2
+tilt_deg = 12.0
+
+[imu]
+axes = ["x", "-y", "-z"]
+position_m = [0.0, 0.0, 0.5]
+
+[can]
+dbc = "{dbc or DBC_PATH}"
+{extra}
+[can.signals]
+{signals}
+""")
+    return path
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("cli")
+    imu, speed = sim_imu(duration_s=1.0, seed=6)
+    log = tmp / "drive.blf"
+    offset = write_can_log(log, imu, speed)
+    return imu, offset, log
+
+
+@pytest.mark.parametrize("suffix", [".parquet", ".csv"])
+def test_writes_table_and_summary(tmp_path, drive, capsys, suffix):
+    imu, offset, log = drive
+    out = tmp_path / f"imu{suffix}"
+    rc = main(["can", str(log), "--config", str(_config(tmp_path)), "--out", str(out), "--quiet"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    for needle in ("frames read", "samples: 100", "IMU_RATE.RateX", "deg/s", "gaps: none",
+                   "unknown IDs (not in the DBC): 1: 0x51A", "decode errors: 0", "Hz"):
+        assert needle in printed, needle
+    table = pd.read_parquet(out) if suffix == ".parquet" else pd.read_csv(out)
+    assert len(table) == len(imu)
+    # FRD IMU: vehicle gyro_z = -IMU gyro_z, within half a raw step of the written sample
+    assert np.abs(table["gyro_z_rad_s"] + imu["gyro_z_rad_s"]).max() <= RES_GYRO_RAD_S / 2 * (1 + 1e-6)
+    assert np.abs(table["t_s"] - offset - imu["t_s"]).max() < 1.5e-6
+    assert not list(tmp_path.glob(".*partial*")), "no temporary file left behind"
+
+
+def _run_error(args, capsys):
+    rc = main(args)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert len(err) == 1 and err[0].startswith("error: "), err
+    return err[0]
+
+
+def test_bad_inputs_one_line_exit_2(tmp_path, drive, capsys):
+    _, _, log = drive
+    cfg = _config(tmp_path)
+    out = tmp_path / "imu.parquet"
+    msg = _run_error(["can", str(tmp_path / "missing.blf"), "--config", str(cfg), "--out", str(out), "--quiet"], capsys)
+    assert "missing.blf: no such log file" in msg
+    msg = _run_error(["can", str(log), "--config", str(cfg), "--out", str(tmp_path / "imu.xlsx"), "--quiet"], capsys)
+    assert "output must end in .parquet or .csv" in msg
+    broken = tmp_path / "broken.dbc"
+    broken.write_text(DBC_PATH.read_text().replace('BO_ 376 IMU_ACC: 8 IMU', 'BO_ 376 IMU_ACC 8 IMU', 1))
+    msg = _run_error(["can", str(log), "--config", str(cfg), "--out", str(out), "--dbc", str(broken), "--quiet"], capsys)
+    assert "broken.dbc:" in msg and "DBC syntax error" in msg
+    bad_cfg = _config(tmp_path, extra="gap_limt_s = 0.2\n")
+    msg = _run_error(["can", str(log), "--config", str(bad_cfg), "--out", str(out), "--quiet"], capsys)
+    assert "[can] gap_limt_s is not a known key" in msg
+    assert not out.exists()
+
+
+def test_truncated_log_needs_partial(tmp_path, drive, capsys):
+    _, _, log = drive
+    cut = tmp_path / "cut.blf"
+    cut.write_bytes(log.read_bytes()[: log.stat().st_size * 2 // 3])
+    cfg = _config(tmp_path)
+    out = tmp_path / "imu.csv"
+    msg = _run_error(["can", str(cut), "--config", str(cfg), "--out", str(out), "--quiet"], capsys)
+    assert "truncated" in msg and "nothing written" in msg and "--partial" in msg
+    assert not out.exists(), "never a partial output file that looks complete"
+    out_pq = tmp_path / "imu.parquet"
+    assert main(["can", str(cut), "--config", str(cfg), "--out", str(out_pq), "--partial", "--quiet"]) == 0
+    assert "reading stopped early" in capsys.readouterr().err
+    table = pd.read_parquet(out_pq)
+    assert table.attrs["complete"] is False and 0 < len(table) < 100
+
+
+def test_config_with_only_imu_and_can(tmp_path, drive, capsys):
+    """A CAN-only user needs no [camera]; a config without [can] is a one-line error."""
+    _, _, log = drive
+    signals = "\n".join(f'{k} = "{v}"' for k, v in signal_map(False).items())
+    cfg = tmp_path / "can_only.toml"
+    cfg.write_text(f'[imu]\naxes = ["x", "-y", "-z"]\n[can]\ndbc = "{DBC_PATH}"\n[can.signals]\n{signals}\n')
+    out = tmp_path / "imu.csv"
+    assert main(["can", str(log), "--config", str(cfg), "--out", str(out), "--quiet"]) == 0
+    assert "gyro_y_rad_s: UNAVAILABLE" in capsys.readouterr().out
+    assert pd.read_csv(out)["gyro_y_rad_s"].isna().all()
+    no_can = tmp_path / "no_can.toml"
+    no_can.write_text('[imu]\naxes = ["x", "y", "z"]\n')
+    msg = _run_error(["can", str(log), "--config", str(no_can), "--out", str(out), "--quiet"], capsys)
+    assert "[can] is missing" in msg
