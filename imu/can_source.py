@@ -37,6 +37,10 @@ from .samples import (
 __all__ = ["StreamDecoder", "LiveSource"]
 
 _IMU = set(GYRO + ACCEL)
+#: Gaps kept per source for the summary of a long-running stream.
+_MAX_GAPS = 1000
+#: Valid speed frames kept while no sample asks for them (a bus without the clock message).
+_MAX_SPEED_HISTORY = 4096
 
 
 @dataclass
@@ -104,7 +108,7 @@ class StreamDecoder:
         self._open: deque[_Group] = deque()
         self._refs: deque[_Group] = deque()
         self._pending: deque[tuple] = deque()
-        self._speed: deque[tuple[float, float, int]] = deque()
+        self._speed: deque[tuple[float, float, int]] = deque(maxlen=_MAX_SPEED_HISTORY)
         self._speed_n = 0
         self._prev_speed_idx = -1
         self._last_emitted_t = -math.inf
@@ -184,7 +188,7 @@ class StreamDecoder:
             if t == sc.last_t:
                 sc.duplicates += 1
                 continue
-            if sc.frames and t - sc.last_t > self.gap_limit_s:
+            if sc.frames and t - sc.last_t > self.gap_limit_s and len(sc.gaps) < _MAX_GAPS:
                 sc.gaps.append(Gap(src.name, sc.last_t, t - sc.last_t))
             if not sc.frames:
                 sc.first_t = t
@@ -325,11 +329,14 @@ class StreamDecoder:
         channels = []
         for si, s in enumerate(self.plan.sources):
             sc = self._src[si]
+            span = sc.last_t - sc.first_t
             for p in s.signals:
+                n_ok = sc.valid.get(p.channel, 0)
                 channels.append(ChannelStats(
                     channel=p.channel, column=col_of[p.channel], ref=p.ref, unit=p.unit,
-                    decoded=sc.valid.get(p.channel, 0), invalid=sc.invalid.get(p.channel, 0),
-                    out_of_range=sc.out_of_range.get(p.channel, 0), rate_hz=math.nan,
+                    decoded=n_ok, invalid=sc.invalid.get(p.channel, 0),
+                    out_of_range=sc.out_of_range.get(p.channel, 0),
+                    rate_hz=n_ok / span if n_ok > 1 and span > 0 else math.nan,  # valid values per second
                 ))
         span = self._last_sample_t - self._first_sample_t
         return Summary(
