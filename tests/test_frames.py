@@ -112,3 +112,12 @@ def test_vectorised_shapes():
 def test_bad_order_is_rejected():
     with pytest.raises(ValueError, match="Euler order"):
         F.matrix_from_euler("zzz", 0, 0, 0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(roll=outer, pitch=middle, yaw=outer, w=st.lists(st.floats(-2.0, 2.0), min_size=3, max_size=3))
+def test_scalar_fast_paths_match_vectorised(roll, pitch, yaw, w):
+    np.testing.assert_allclose(F.R_from_rpy_scalar(roll, pitch, yaw), F.R_from_rpy(roll, pitch, yaw), atol=1e-14)
+    R = F.R_from_rpy(roll, pitch, yaw)
+    np.testing.assert_allclose(F.rpy_from_R_scalar(R), F.rpy_from_R(R), atol=1e-12)
+    np.testing.assert_allclose(F.so3_exp_scalar(*w), F.so3_exp(np.array(w)), atol=1e-14)

@@ -1,0 +1,469 @@
+r"""Attitude and road EKF: CAN IMU rates propagate, vision angles and gravity correct.
+
+State (named slices in :class:`S`, units in the names)::
+
+    roll_w, pitch_w   rad   vehicle attitude relative to the level frame (ZYX roll, pitch)
+    yaw_rel           rad   vehicle heading minus road heading, in the level frame
+    bank, grade       rad   road frame relative to level at the vehicle: R_g'_from_o = Ry(grade) Rx(bank)
+    gyro_bias         rad/s gyro bias, vehicle axes (3)
+    speed             m/s   ground speed of the vehicle origin
+    accel_x           m/s^2 dv/dt
+    bank_rate         rad/s d(bank)/dt
+    accel_bias        m/s^2 accelerometer bias, vehicle axes (3)
+
+with ``g'`` the level frame turned to the road's heading, so that
+``R_g'_from_v = Rz(yaw_rel) Ry(pitch_w) Rx(roll_w)`` and the attitude relative to the road is
+
+.. math:: R_{o\leftarrow v} = (R_y(\text{grade}) R_x(\text{bank}))^T R_z(\psi_{rel}) R_y(\theta_w) R_x(\phi_w),
+
+whose ZYX angles are what vision measures (INTERFACE.md). With zero yaw and pitch this gives
+``roll = roll_w - bank``: the road bank is the IMU's gravity-referenced roll minus the vision
+roll (Damon et al. 2018, section IV), here estimated jointly with its covariance.
+
+Process (one IMU interval ``dt``, rates ``w = gyro - bias`` averaged over the interval)::
+
+    R_g'_from_v <- Rz(-dpsi_road) R_g'_from_v exp([w dt]x)     (exact for the interval)
+    dpsi_road = kappa v cos(yaw_rel) / (1 - kappa d) dt          road heading change, from the
+                                                                 lane curvature kappa and the
+                                                                 lateral offset d of vision
+    bank += bank_rate dt;  speed += accel_x dt
+    bank_rate, grade, gyro_bias, accel_x: random walks
+
+The bank is an integrated random walk: superelevation runoffs are ramps of a few deg/s that a
+plain random walk could only follow by letting vision noise through; with a rate state the
+ramp is tracked without lag and the bank stays smooth where it is constant.
+
+An IMU without a pitch-rate channel (Bosch MM5.10) uses the kinematic reconstruction
+``q = r tan(roll_w)``, which holds when the pitch relative to level does not change (steady
+lean: Omega (-sin theta, cos theta sin phi, cos theta cos phi) in the body); pitch motion then
+enters as process noise and is corrected by vision.
+
+Gravity reference (specific force at the IMU, vehicle axes). The vehicle origin moves along
+its heading: in the level frame turned to the vehicle's heading its acceleration is
+``a_h = (v', v psi_w', 0)`` with the heading rate ``psi_w' = (q sin(phi) + r cos(phi)) /
+cos(theta)`` (ZYX kinematics). Then::
+
+    f = Rx(-phi) Ry(-theta) (v', v psi_w', g) + w' x rho + w x (w x rho)
+
+with lever arm rho and angular acceleration w'. Writing ``a_b = (v', v r, -v q)`` instead (the
+textbook body-frame form, velocity along body x) is wrong here: a body that pitches on its
+suspension relative to its path would turn ``-v q`` into a spurious vertical acceleration
+(0.9 m/s^2 for a 0.3 deg, 1.3 Hz pitch oscillation at 80 km/h, measured on the simulator).
+On a leaning motorcycle the lateral specific force is ~0, so ``f_y`` pins
+``tan(roll_w) = -v psi_w' / g`` (positive roll leans right, psi_w' > 0 turns left; for zero
+pitch ``sin(roll_w) = -v r / g``): the centripetal compensation. A yaw-rate bias of 0.3 deg/s
+at 25 m/s would be 0.75 deg of roll through this term, which is why the biases are states. The
+same equation holds for a car, whose body follows the road (``f_y`` then carries body roll).
+
+Noise is written as (std in natural units)^2 (:class:`NoiseModel`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+from scipy.stats import chi2
+
+from vision.frames import R_from_rpy_scalar, rpy_from_R_scalar, so3_exp_scalar, wrap_angle
+
+__all__ = ["S", "DIM_X", "NoiseModel", "ImuStep", "AttitudeEKF", "GRAVITY_M_S2",
+           "relative_attitude", "vision_hx", "vision_jacobian"]
+
+GRAVITY_M_S2 = 9.80665
+
+
+class S:
+    """State indices (rad, rad/s, m/s, m/s^2)."""
+
+    ROLL_W = 0
+    PITCH_W = 1
+    YAW_REL = 2
+    BANK = 3
+    GRADE = 4
+    GYRO_BIAS = slice(5, 8)
+    GYRO_BIAS_X, GYRO_BIAS_Y, GYRO_BIAS_Z = 5, 6, 7
+    SPEED = 8
+    ACCEL_X = 9
+    BANK_RATE = 10
+    ACCEL_BIAS = slice(11, 14)
+
+
+DIM_X = 14
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Process and measurement noise as 1-sigma values in natural units.
+
+    Process noise is given as random-walk densities (per sqrt(second)); measurement noise per
+    sample. The filter squares them: ``Q = sigma**2 * dt``, ``R = sigma**2``.
+    """
+
+    gyro_noise_rad_s: float = math.radians(0.05)           # white noise of one gyro sample
+    gyro_bias_walk_rad_s_sqrt_s: float = math.radians(0.005)
+    bank_rate_walk_rad_s_sqrt_s: float = math.radians(2.0)  # superelevation runoffs of a few deg/s
+    grade_walk_rad_sqrt_s: float = math.radians(0.2)
+    accel_x_walk_m_s2_sqrt_s: float = 3.0                  # longitudinal jerk
+    pitch_walk_rad_sqrt_s: float = math.radians(0.2)       # attitude motion the gyro does not see
+    no_pitch_rate_walk_rad_sqrt_s: float = math.radians(3.0)  # pitch motion without a pitch gyro
+    #: Accelerometer noise plus model error per axis (x, y, z). The vertical axis also carries
+    #: suspension and road-profile motion that the model leaves out; trusting it more lets
+    #: the EKF read roll from f_z = g / cos(roll) in turns, which a bank runoff's 0.1 m/s^2
+    #: of vertical acceleration then biases by a degree (seen on the simulator).
+    accel_meas_m_s2: tuple[float, float, float] = (0.15, 0.15, 0.6)
+    speed_meas_m_s: float = 0.05
+    vision_sigma_scale: float = 1.0                        # multiplies the vision's own sigmas
+    vision_sigma_floor_rad: float = math.radians(0.05)
+    gate_probability: float = 0.999                        # chi-square gate of every update
+
+    init_angle_rad: float = math.radians(5.0)
+    init_bank_rad: float = math.radians(5.0)
+    init_bank_rate_rad_s: float = math.radians(2.0)
+    init_grade_rad: float = math.radians(3.0)
+    init_gyro_bias_rad_s: float = math.radians(0.5)
+    init_speed_m_s: float = 2.0
+    init_accel_m_s2: float = 2.0
+    #: Accelerometer bias prior: what is left after calibration. The lateral part cannot be
+    #: told from a bank offset (both shift f_y by g * angle), so it bounds the bank accuracy:
+    #: 0.01 m/s^2 is 0.06 deg of bank.
+    init_accel_bias_m_s2: float = 0.03
+    accel_bias_walk_m_s2_sqrt_s: float = 0.0005
+
+
+@dataclass(frozen=True)
+class ImuStep:
+    """Inputs of one propagation interval (vehicle frame)."""
+
+    dt_s: float
+    gyro_rad_s: np.ndarray           # mean measured rate over the interval (bias included)
+    curvature_1_m: float = 0.0       # road curvature at the vehicle (from the lane fit)
+    lateral_offset_m: float = 0.0    # vehicle's offset from the line that curvature belongs to
+
+
+_VISION_STATES = (S.ROLL_W, S.PITCH_W, S.YAW_REL, S.BANK, S.GRADE)
+
+
+def relative_attitude(x) -> np.ndarray:
+    """``R_o_from_v`` of state ``x``: ``(Ry(grade) Rx(bank))^T Rz(yaw_rel) Ry(pitch_w) Rx(roll_w)``."""
+    R_gp_from_v = R_from_rpy_scalar(x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL])
+    R_gp_from_o = R_from_rpy_scalar(x[S.BANK], x[S.GRADE], 0.0)
+    return R_gp_from_o.T @ R_gp_from_v
+
+
+def vision_hx(x) -> np.ndarray:
+    """Predicted vision measurement: (roll, pitch, yaw) relative to the road, rad."""
+    return np.array(rpy_from_R_scalar(relative_attitude(x)))
+
+
+def _skew(a, b, c):
+    return np.array([[0.0, -c, b], [c, 0.0, -a], [-b, a, 0.0]])
+
+
+_EX, _EY, _EZ = _skew(1.0, 0.0, 0.0), _skew(0.0, 1.0, 0.0), _skew(0.0, 0.0, 1.0)
+
+
+def vision_jacobian(x) -> np.ndarray:
+    """3 x DIM_X Jacobian of :func:`vision_hx`, analytic.
+
+    With ``A = Ry(grade) Rx(bank)``, ``B = Rz(yaw_rel) Ry(pitch_w) Rx(roll_w)`` and
+    ``R = A^T B``: ``dB/droll = B [x]``, ``dB/dyaw = [z] B``, ``dB/dpitch = [Rz(yaw) y] B``,
+    ``dA/dbank = A [x]``, ``dA/dgrade = [y] A``; then the derivatives of
+    ``(atan2(R21, R22), -asin(R20), atan2(R10, R00))``.
+    """
+    A = R_from_rpy_scalar(x[S.BANK], x[S.GRADE], 0.0)
+    B = R_from_rpy_scalar(x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL])
+    R = A.T @ B
+    cy, sy = math.cos(x[S.YAW_REL]), math.sin(x[S.YAW_REL])
+    dR = (
+        A.T @ (B @ _EX),                      # roll_w
+        A.T @ (_skew(-sy, cy, 0.0) @ B),      # pitch_w
+        A.T @ (_EZ @ B),                      # yaw_rel
+        -(_EX @ R),                           # bank:  (A [x])^T B = -[x] A^T B
+        -(A.T @ _EY @ B),                     # grade: ([y] A)^T B = -A^T [y] B
+    )
+    r21, r22, r20, r10, r00 = R[2, 1], R[2, 2], R[2, 0], R[1, 0], R[0, 0]
+    n_roll, n_pitch, n_yaw = r21 * r21 + r22 * r22, math.sqrt(max(1e-300, 1.0 - r20 * r20)), r10 * r10 + r00 * r00
+    H = np.zeros((3, DIM_X))
+    for i, d in zip(_VISION_STATES, dR):
+        H[0, i] = (r22 * d[2, 1] - r21 * d[2, 2]) / n_roll
+        H[1, i] = -d[2, 0] / n_pitch
+        H[2, i] = (r00 * d[1, 0] - r10 * d[0, 0]) / n_yaw
+    return H
+
+
+def vision_jacobian_numeric(x, eps: float = 1e-6) -> np.ndarray:
+    """Central-difference twin of :func:`vision_jacobian`, for tests."""
+    H = np.zeros((3, DIM_X))
+    for i in _VISION_STATES:
+        xp, xm = x.copy(), x.copy()
+        xp[i] += eps
+        xm[i] -= eps
+        H[:, i] = wrap_angle(vision_hx(xp) - vision_hx(xm)) / (2 * eps)
+    return H
+
+
+def _inv_small(M: np.ndarray) -> np.ndarray:
+    """Inverse of a 1x1 or symmetric 3x3 matrix by cofactors (numpy's inv costs more here)."""
+    if M.shape[0] == 1:
+        return np.array([[1.0 / M[0, 0]]])
+    if M.shape[0] != 3:
+        return np.linalg.inv(M)
+    a, b, c, d, e, f = M[0, 0], M[0, 1], M[0, 2], M[1, 1], M[1, 2], M[2, 2]
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    det = a * A + b * B + c * C
+    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
+    return np.array([[A, B, C], [B, D, E], [C, E, F]]) / det
+
+
+def _angle_residual(a, b):
+    return wrap_angle(np.asarray(a) - np.asarray(b))
+
+
+class AttitudeEKF(ExtendedKalmanFilter):
+    """filterpy EKF with the nonlinear process model of the module docstring.
+
+    Parameters
+    ----------
+    noise : NoiseModel
+    lever_arm_m : (3,) array
+        IMU position in the vehicle frame, m.
+    has_pitch_rate : bool
+        False for IMUs without a pitch-rate channel: ``q = r tan(roll_w)``.
+    """
+
+    def __init__(self, noise: NoiseModel = NoiseModel(), lever_arm_m=(0.0, 0.0, 0.0),
+                 has_pitch_rate: bool = True) -> None:
+        super().__init__(dim_x=DIM_X, dim_z=3)
+        self.noise = noise
+        self.lever_arm_m = np.asarray(lever_arm_m, dtype=float)
+        self.has_pitch_rate = has_pitch_rate
+        n = noise
+        sig0 = np.zeros(DIM_X)
+        sig0[[S.ROLL_W, S.PITCH_W, S.YAW_REL]] = n.init_angle_rad
+        sig0[S.BANK], sig0[S.GRADE] = n.init_bank_rad, n.init_grade_rad
+        sig0[S.GYRO_BIAS] = n.init_gyro_bias_rad_s
+        sig0[S.SPEED], sig0[S.ACCEL_X] = n.init_speed_m_s, n.init_accel_m_s2
+        sig0[S.BANK_RATE] = n.init_bank_rate_rad_s
+        sig0[S.ACCEL_BIAS] = n.init_accel_bias_m_s2
+        self.x = np.zeros(DIM_X)
+        self.P = np.diag(sig0**2)
+        self._I = np.eye(DIM_X)
+        self.F = np.eye(DIM_X)
+        self.Q = np.zeros((DIM_X, DIM_X))
+        self.x_prior, self.P_prior = self.x.copy(), self.P.copy()
+        self.x_post, self.P_post = self.x.copy(), self.P.copy()
+        # constant parts of Q per second
+        q = np.zeros(DIM_X)
+        q[S.BANK_RATE] = n.bank_rate_walk_rad_s_sqrt_s**2
+        q[S.GRADE] = n.grade_walk_rad_sqrt_s**2
+        q[S.GYRO_BIAS] = n.gyro_bias_walk_rad_s_sqrt_s**2
+        q[S.ACCEL_X] = n.accel_x_walk_m_s2_sqrt_s**2
+        q[S.ACCEL_BIAS] = n.accel_bias_walk_m_s2_sqrt_s**2
+        q[S.ROLL_W] = q[S.YAW_REL] = n.pitch_walk_rad_sqrt_s**2
+        q[S.PITCH_W] = (n.pitch_walk_rad_sqrt_s if has_pitch_rate else n.no_pitch_rate_walk_rad_sqrt_s) ** 2
+        self._q_per_s = q
+        self.last_d2 = math.nan
+        self._gate = {k: float(chi2.ppf(noise.gate_probability, k)) for k in (1, 2, 3)}
+        self._R_accel = np.diag(np.asarray(noise.accel_meas_m_s2, dtype=float) ** 2)
+        self._R_speed = np.array([[noise.speed_meas_m_s**2]])
+        self._H_speed = np.zeros((1, DIM_X))
+        self._H_speed[0, S.SPEED] = 1.0
+        R_, P_, Y_ = S.ROLL_W, S.PITCH_W, S.YAW_REL
+        BX, BY, BZ = S.GYRO_BIAS_X, S.GYRO_BIAS_Y, S.GYRO_BIAS_Z
+        cells = [(R_, R_), (R_, P_), (R_, BX), (R_, BY), (R_, BZ), (P_, R_), (P_, BY), (P_, BZ),
+                 (Y_, R_), (Y_, P_), (Y_, BY), (Y_, BZ), (Y_, Y_), (Y_, S.SPEED),
+                 (S.SPEED, S.ACCEL_X), (S.BANK, S.BANK_RATE)]
+        self._F_idx = np.array([i * DIM_X + j for i, j in cells])
+
+    # ---- body rates ----
+
+    def body_rates(self, gyro_rad_s, x=None) -> np.ndarray:
+        """Bias-corrected rates (p, q, r); q reconstructed when there is no pitch-rate gyro."""
+        x = self.x if x is None else x
+        w = np.asarray(gyro_rad_s, dtype=float) - x[S.GYRO_BIAS]
+        if not self.has_pitch_rate:
+            w[1] = w[2] * math.tan(x[S.ROLL_W])
+        return w
+
+    # ---- process ----
+
+    def predict_x(self, u: ImuStep = None) -> None:
+        """Propagate the state over one IMU interval (module docstring, "Process")."""
+        x, dt = self.x.copy(), u.dt_s
+        p, q, r = self.body_rates(u.gyro_rad_s, x)
+        R = R_from_rpy_scalar(x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL]) @ so3_exp_scalar(p * dt, q * dt, r * dt)
+        roll, pitch, yaw = rpy_from_R_scalar(R)
+        x[S.ROLL_W], x[S.PITCH_W] = roll, pitch
+        x[S.YAW_REL] = yaw - self._road_turn_rate(x, u) * dt
+        x[S.BANK] += x[S.BANK_RATE] * dt
+        x[S.SPEED] += x[S.ACCEL_X] * dt
+        self.x = x
+
+    def road_turn_rate(self, u: ImuStep) -> float:
+        """Heading rate of the road at the vehicle, rad/s: ``kappa v cos(yaw_rel) / (1 - kappa d)``."""
+        return self._road_turn_rate(self.x, u)
+
+    @staticmethod
+    def _road_turn_rate(x, u: ImuStep) -> float:
+        k = u.curvature_1_m
+        if k == 0.0:
+            return 0.0
+        return k * x[S.SPEED] * math.cos(x[S.YAW_REL]) / max(1.0 - k * u.lateral_offset_m, 0.2)
+
+    def transition(self, u: ImuStep):
+        """Jacobian ``F = I + A dt`` and process noise ``Q`` of one interval.
+
+        ``A`` is the derivative of the ZYX Euler-rate equations ``roll' = p + tan(th) (q sin(ph)
+        + r cos(ph))``, ``pitch' = q cos(ph) - r sin(ph)``, ``yaw' = (q sin(ph) + r cos(ph)) /
+        cos(th) - road_turn_rate`` with ``(p, q, r) = gyro - bias``; built with one array
+        assignment per matrix because this runs for every IMU sample.
+        """
+        x, dt = self.x, u.dt_s
+        phi, theta, psi = x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL]
+        sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
+        tt = st / ct
+        p, q, r = self.body_rates(u.gyro_rad_s, x)
+        if self.has_pitch_rate:
+            qs_rc = q * sf + r * cf
+            vals = [1.0 + tt * (q * cf - r * sf) * dt, qs_rc / ct**2 * dt, -dt, -tt * sf * dt, -tt * cf * dt,
+                    (-q * sf - r * cf) * dt, -cf * dt, sf * dt,
+                    (q * cf - r * sf) / ct * dt, qs_rc * st / ct**2 * dt, -sf / ct * dt, -cf / ct * dt]
+            e = (1.0, sf * tt, cf * tt, 0.0, cf, -sf, 0.0, sf / ct, cf / ct)
+        else:  # q = r tan(phi): pitch rate 0, roll and yaw from p and r only
+            vals = [1.0 + tt * r * sf / cf**2 * dt, r / (cf * ct**2) * dt, -dt, 0.0, -tt / cf * dt,
+                    0.0, 0.0, 0.0,
+                    r * sf / (cf**2 * ct) * dt, r * st / (cf * ct**2) * dt, 0.0, -dt / (cf * ct)]
+            e = (1.0, 0.0, tt / cf, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0 / (cf * ct))
+        k = u.curvature_1_m
+        scale = 1.0 / max(1.0 - k * u.lateral_offset_m, 0.2)
+        vals += [1.0 + k * x[S.SPEED] * math.sin(psi) * scale * dt, -k * math.cos(psi) * scale * dt, dt, dt]
+        F = self._I.copy()
+        F.flat[self._F_idx] = vals
+        E = np.array(e).reshape(3, 3)
+        Q = np.diag(self._q_per_s * dt)
+        Q[:3, :3] += (E @ E.T) * (self.noise.gyro_noise_rad_s * dt) ** 2
+        # integrated random walks: the integral's own share
+        Q[S.SPEED, S.SPEED] += self._q_per_s[S.ACCEL_X] * dt**3 / 3.0
+        Q[S.BANK, S.BANK] += self._q_per_s[S.BANK_RATE] * dt**3 / 3.0
+        return F, Q
+
+    def propagate(self, u: ImuStep) -> None:
+        """filterpy predict with this interval's F and Q."""
+        self.F, self.Q = self.transition(u)
+        self.predict(u)
+
+    # ---- measurements ----
+
+    def gated_update(self, z, H, hx, R, residual=np.subtract) -> bool:
+        """Chi-square (Mahalanobis) gate, then the EKF update.
+
+        The gate ``y^T S^-1 y < chi2(p_gate, dof)`` is computed before the update from the same
+        ``S = H P H^T + R``; a rejected measurement leaves the state untouched and returns
+        False. The update is filterpy's (Joseph form, same attributes ``y, S, SI, K, z,
+        x_post, P_post``), written out here so that ``S`` is inverted once.
+        """
+        y = residual(z, hx)
+        PHT = self.P @ H.T
+        Sm = H @ PHT + R
+        SI = _inv_small(Sm)
+        d2 = float(y @ SI @ y)
+        self.last_d2 = d2
+        if d2 > self._gate[len(y)]:
+            return False
+        K = PHT @ SI
+        self.x = self.x + K @ y
+        # P - K S K^T (the optimal-gain form of the Joseph update), kept symmetric
+        P = self.P - K @ PHT.T
+        self.P = (P + P.T) * 0.5
+        self.y, self.S, self.SI, self.K, self.z = y, Sm, SI, K, z
+        self._log_likelihood = self._likelihood = self._mahalanobis = None
+        self.x_post, self.P_post = self.x, self.P
+        return True
+
+    def update_vision(self, angles_rad, sigmas_rad) -> bool:
+        """Vision (roll, pitch, yaw) relative to the road, with the estimator's own 1-sigma."""
+        n = self.noise
+        sig = np.maximum(np.asarray(sigmas_rad, dtype=float) * n.vision_sigma_scale, n.vision_sigma_floor_rad)
+        return self.gated_update(np.asarray(angles_rad, dtype=float), vision_jacobian(self.x),
+                                 vision_hx(self.x), np.diag(sig**2), residual=_angle_residual)
+
+    def specific_force_model(self, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0):
+        """Predicted specific force at the IMU (vehicle axes, m/s^2) and its Jacobian.
+
+        Module docstring, "Gravity reference": the velocity's direction in the body follows
+        the relative roll and pitch, and its rate the relative Euler rates (body rates minus
+        the road frame's own rotation: heading rate about level z, bank rate about road x).
+        The Jacobian keeps the dominant terms (gravity, centripetal, speed, biases).
+        """
+        x, g = self.x, GRAVITY_M_S2
+        phi, theta, v, a = x[S.ROLL_W], x[S.PITCH_W], x[S.SPEED], x[S.ACCEL_X]
+        sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
+        p, q, r = self.body_rates(gyro_rad_s, x)
+        # attitude relative to the road and the road frame's rotation, in o
+        R_gp_from_o = R_from_rpy_scalar(x[S.BANK], x[S.GRADE], 0.0)
+        R_o_from_v = R_gp_from_o.T @ R_from_rpy_scalar(phi, theta, x[S.YAW_REL])
+        phi_o, theta_o = math.atan2(R_o_from_v[2, 1], R_o_from_v[2, 2]), -math.asin(max(-1.0, min(1.0, R_o_from_v[2, 0])))
+        w_road_o = road_turn_rate_rad_s * R_gp_from_o[2, :]
+        w_road_o[0] += x[S.BANK_RATE]
+        w_road_v = w_road_o @ R_o_from_v
+        pr, qr, rr = p - w_road_v[0], q - w_road_v[1], r - w_road_v[2]
+        so, co, sto, cto = math.sin(phi_o), math.cos(phi_o), math.sin(theta_o), math.cos(theta_o)
+        theta_o_dot = qr * co - rr * so
+        phi_o_dot = pr + sto / cto * (qr * so + rr * co)
+        # velocity direction in the body and its derivative as seen in the body
+        ex, ey, ez = cto, sto * so, sto * co
+        dex = -sto * theta_o_dot
+        dey = cto * theta_o_dot * so + sto * co * phi_o_dot
+        dez = cto * theta_o_dot * co - sto * so * phi_o_dot
+        # a_b = a e + v (de + w x e);  gravity g (-sin th, cos th sin ph, cos th cos ph)
+        fx = a * ex + v * (dex + q * ez - r * ey) - g * st
+        fy = a * ey + v * (dey + r * ex - p * ez) + g * ct * sf
+        fz = a * ez + v * (dez + p * ey - q * ex) + g * ct * cf
+        # lever arm: w' x rho + w x (w x rho)
+        rx, ry, rz = self.lever_arm_m
+        wdx, wdy, wdz = gyro_dot_rad_s2
+        cx, cy, cz = q * rz - r * ry, r * rx - p * rz, p * ry - q * rx
+        ba = x[S.ACCEL_BIAS]
+        f = np.array([fx + wdy * rz - wdz * ry + q * cz - r * cy + ba[0],
+                      fy + wdz * rx - wdx * rz + r * cx - p * cz + ba[1],
+                      fz + wdx * ry - wdy * rx + p * cy - q * cx + ba[2]])
+        # Jacobian. Rates enter through w x e and through de (the relative Euler rates):
+        # df/dw = v (-[e]x + de/dtheta_o (0, cos, -sin) + de/dphi_o (1, tan sin, tan cos)); the
+        # two cancel for a body pitching relative to its path, so a pitch-rate bias does not
+        # show in f_z. Gravity gives the attitude terms; e's own dependence on the relative
+        # angles is second order (times the small relative pitch) and left out.
+        tto = sto / cto
+        dth = (-sto, cto * so, cto * co)       # de/dtheta_o
+        dph = (0.0, sto * co, -sto * so)       # de/dphi_o
+        Jw = v * np.array([
+            [dph[0], -ez + dth[0] * co + dph[0] * tto * so, ey - dth[0] * so + dph[0] * tto * co],
+            [ez + dph[1], dth[1] * co + dph[1] * tto * so, -ex - dth[1] * so + dph[1] * tto * co],
+            [-ey + dph[2], ex + dth[2] * co + dph[2] * tto * so, -dth[2] * so + dph[2] * tto * co],
+        ])
+        H = np.zeros((3, DIM_X))
+        H[:, S.ACCEL_BIAS] = np.eye(3)
+        H[:, S.ACCEL_X] = (ex, ey, ez)
+        H[:, S.SPEED] = ((fx + g * st - a * ex) / v, (fy - g * ct * sf - a * ey) / v,
+                         (fz - g * ct * cf - a * ez) / v) if v > 0.1 else (0.0, 0.0, 0.0)
+        H[:, S.PITCH_W] = (-g * ct, -g * st * sf, -g * st * cf)
+        H[:, S.ROLL_W] = (0.0, g * ct * cf, -g * ct * sf)
+        if self.has_pitch_rate:
+            H[:, S.GYRO_BIAS] = -Jw
+        else:  # q = r tan(phi): r carries q, and q depends on the roll
+            tf = sf / cf
+            H[:, S.GYRO_BIAS_X] = -Jw[:, 0]
+            H[:, S.GYRO_BIAS_Z] = -(Jw[:, 2] + Jw[:, 1] * tf)
+            H[:, S.ROLL_W] += Jw[:, 1] * r / cf**2
+        return f, H
+
+    def update_gravity(self, accel_m_s2, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0) -> bool:
+        """Accelerometer as gravity reference, centripetal and lever-arm terms compensated."""
+        f, H = self.specific_force_model(gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s)
+        return self.gated_update(np.asarray(accel_m_s2, dtype=float), H, f, self._R_accel)
+
+    def update_speed(self, speed_m_s: float) -> bool:
+        return self.gated_update(np.array([speed_m_s]), self._H_speed, np.array([self.x[S.SPEED]]),
+                                 self._R_speed)

@@ -1,0 +1,284 @@
+"""Streaming fusion: IMU samples and vision results in, the latest estimate out.
+
+:class:`FusionStream` is what the prototype embeds and what ``vifusion run`` feeds in time
+order. Each IMU sample propagates the filter from the previous sample with the mean of the
+two gyro readings, then applies the gravity reference and, when fresh, the wheel speed. A
+vision result at a time between two IMU samples is applied at its own time: the filter is
+propagated to it, updated, and propagated on. A result that arrives late (the vision takes
+longer than an IMU interval, or frames come out of order) rolls the filter back to the stored
+state just before its time and re-propagates the stored IMU samples: the same answer as if
+it had come in time, as long as it is within ``history_s``.
+
+With ``record=True`` every step's prior, posterior and Jacobian are kept for the RTS smoother
+(:mod:`fusion.smoother`); recording needs inputs in time order.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .ekf import DIM_X, AttitudeEKF, ImuStep, NoiseModel, S, vision_hx, vision_jacobian
+
+__all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
+
+
+@dataclass(frozen=True)
+class FusionOptions:
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    use_vision: bool = True
+    #: Apply the gravity reference every n-th IMU sample (1: every sample).
+    gravity_every: int = 1
+    #: How far back late vision results are still applied, s.
+    history_s: float = 1.0
+    #: Drop a lane-fit curvature older than this (the road heading then follows the gyro), s.
+    curvature_hold_s: float = 2.0
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The filter's output at ``t_s``: angles in rad, 1-sigma in rad."""
+
+    t_s: float
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    bank_rad: float
+    roll_world_rad: float
+    pitch_world_rad: float
+    grade_rad: float
+    roll_sigma_rad: float
+    pitch_sigma_rad: float
+    yaw_sigma_rad: float
+    bank_sigma_rad: float
+    roll_world_sigma_rad: float
+    pitch_world_sigma_rad: float
+    gyro_bias_rad_s: tuple[float, float, float]
+    speed_m_s: float
+    vision_age_s: float
+
+
+@dataclass
+class StepRecord:
+    """One propagation step for the smoother: from ``t0`` to ``t1``."""
+
+    t1: float
+    F: np.ndarray
+    x_prior: np.ndarray
+    P_prior: np.ndarray
+    x_post: np.ndarray
+    P_post: np.ndarray
+    imu_index: int   # index of the IMU sample at t1, or -1 for a vision time
+
+
+@dataclass
+class _ImuSample:
+    t: float
+    gyro: np.ndarray
+    accel: np.ndarray
+    speed: float
+    speed_fresh: bool
+    index: int
+    x_post: np.ndarray = None
+    P_post: np.ndarray = None
+    gyro_dot: np.ndarray = None
+
+
+class FusionStream:
+    """Feed :meth:`add_imu` and :meth:`add_vision`; read :meth:`estimate`.
+
+    Parameters
+    ----------
+    lever_arm_m : (3,) IMU position in the vehicle frame, m
+    has_pitch_rate : bool
+    options : FusionOptions
+    record : bool
+        Keep every step for the RTS smoother (time-ordered input only).
+    """
+
+    def __init__(self, lever_arm_m=(0.0, 0.0, 0.0), has_pitch_rate: bool = True,
+                 options: FusionOptions = FusionOptions(), record: bool = False) -> None:
+        self.options = options
+        self.ekf = AttitudeEKF(options.noise, lever_arm_m, has_pitch_rate)
+        self.record = record
+        self.steps: list[StepRecord] = []
+        self.start: tuple[np.ndarray, np.ndarray] | None = None   # posterior at the first sample
+        self._hist: deque[_ImuSample] = deque()
+        self._pending: list[tuple] = []       # vision results waiting for the IMU to pass them
+        self._n = 0
+        self._initialized = False
+        self._vision_initialized = False
+        self._curvature = (0.0, 0.0, -math.inf)   # kappa, offset, time
+        self._last_vision_t = -math.inf
+        self._road_rate = 0.0
+        self.counts = dict(imu=0, vision_used=0, vision_rejected=0, vision_invalid=0, vision_late=0,
+                           vision_too_old=0, gravity_rejected=0, speed_rejected=0)
+
+    # ---- inputs ----
+
+    def add_imu(self, t_s: float, gyro_rad_s, accel_m_s2, speed_m_s: float = math.nan,
+                speed_fresh: bool = False) -> None:
+        """One IMU sample in the vehicle frame (rates rad/s, specific force m/s^2) at ``t_s``."""
+        sample = _ImuSample(float(t_s), np.asarray(gyro_rad_s, dtype=float), np.asarray(accel_m_s2, dtype=float),
+                            float(speed_m_s), bool(speed_fresh) and math.isfinite(speed_m_s), self._n)
+        self._n += 1
+        self.counts["imu"] += 1
+        if self._hist and sample.t <= self._hist[-1].t:
+            raise ValueError(f"IMU sample at {sample.t:.6f} s is not after the previous one")
+        # Vision results whose time this sample passes are applied inside the interval.
+        ready = sorted((p for p in self._pending if p[0] <= sample.t), key=lambda p: p[0])
+        if ready:
+            self._pending = [p for p in self._pending if p[0] > sample.t]
+        self._process_sample(sample, visions=ready)
+        self._hist.append(sample)
+        while self._hist and sample.t - self._hist[0].t > self.options.history_s:
+            self._hist.popleft()
+
+    def add_vision(self, t_s: float, angles_rad, sigmas_rad, valid: bool = True,
+                   curvature_1_m: float = math.nan, lateral_offset_m: float = math.nan) -> None:
+        """A vision result: roll, pitch, yaw relative to the road at capture time ``t_s``."""
+        if not self.options.use_vision:
+            return
+        angles = np.asarray(angles_rad, dtype=float)
+        sig = np.asarray(sigmas_rad, dtype=float)
+        if not valid or not (np.all(np.isfinite(angles)) and np.all(np.isfinite(sig))):
+            self.counts["vision_invalid"] += 1
+            return
+        item = (float(t_s), angles, sig, float(curvature_1_m), float(lateral_offset_m))
+        if not self._hist or item[0] > self._hist[-1].t:
+            self._pending.append(item)   # the IMU has not reached it yet
+        else:
+            self.counts["vision_late"] += 1
+            self._apply_late(*item)
+
+    # ---- core ----
+
+    def _init_from_accel(self, s: _ImuSample) -> None:
+        ekf = self.ekf
+        v = s.speed if math.isfinite(s.speed) else 0.0
+        f, r = s.accel, s.gyro[2]
+        ekf.x[S.ROLL_W] = math.atan2(f[1] - v * r, f[2])
+        ekf.x[S.PITCH_W] = math.asin(max(-1.0, min(1.0, -f[0] / 9.80665)))
+        ekf.x[S.SPEED] = v
+        self._initialized = True
+
+    def _process_sample(self, s: _ImuSample, prev: _ImuSample | None = None, visions=()) -> None:
+        """Propagate from the previous sample to ``s``, applying the vision results that fall
+        inside the interval at their own times, then the measurements of ``s``."""
+        prev = prev if prev is not None else (self._hist[-1] if self._hist else None)
+        if prev is None:
+            self._init_from_accel(s)
+            s.gyro_dot = np.zeros(3)
+            for v in visions:
+                self._vision_update(*v)
+        else:
+            t0, g0 = prev.t, prev.gyro
+            for v in visions:
+                if v[0] >= s.t:
+                    continue  # at the sample's own time: applied after the propagation below
+                g_v = prev.gyro + (s.gyro - prev.gyro) * (v[0] - prev.t) / (s.t - prev.t)
+                self._propagate(t0, v[0], (g0 + g_v) / 2, imu_index=-1)
+                self._vision_update(*v)
+                t0, g0 = v[0], g_v
+            self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index)
+            for v in visions:
+                if v[0] >= s.t:
+                    self._vision_update(*v)
+            s.gyro_dot = (s.gyro - prev.gyro) / (s.t - prev.t)
+        ekf = self.ekf
+        if s.index % self.options.gravity_every == 0:
+            if not ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate):
+                self.counts["gravity_rejected"] += 1
+        if s.speed_fresh:
+            if not ekf.update_speed(s.speed):
+                self.counts["speed_rejected"] += 1
+        s.x_post, s.P_post = ekf.x.copy(), ekf.P.copy()
+        if self.record:
+            if prev is None:
+                self.start = (s.x_post, s.P_post)
+            else:
+                self.steps[-1].x_post, self.steps[-1].P_post = s.x_post, s.P_post
+
+    def _propagate(self, t0: float, t1: float, gyro, imu_index: int) -> None:
+        if t1 <= t0:
+            return
+        kappa, offset, t_k = self._curvature
+        if t1 - t_k > self.options.curvature_hold_s:
+            kappa, offset = 0.0, 0.0
+        u = ImuStep(t1 - t0, gyro, kappa, offset)
+        self.ekf.propagate(u)
+        self._road_rate = self.ekf.road_turn_rate(u)
+        if self.record:
+            ekf = self.ekf
+            self.steps.append(StepRecord(t1, ekf.F.copy(), ekf.x_prior.copy(), ekf.P_prior.copy(),
+                                         ekf.x.copy(), ekf.P.copy(), imu_index))
+
+    def _vision_update(self, t, angles, sig, kappa, offset) -> None:
+        ekf = self.ekf
+        if math.isfinite(kappa):
+            self._curvature = (kappa, offset if math.isfinite(offset) else 0.0, t)
+        if not self._vision_initialized:
+            # First frame: take yaw, bank and grade from it so that the filter starts consistent.
+            ekf.x[S.YAW_REL] = angles[2]
+            ekf.x[S.BANK] = ekf.x[S.ROLL_W] - angles[0]
+            ekf.x[S.GRADE] = ekf.x[S.PITCH_W] - angles[1]
+            self._vision_initialized = True
+        if ekf.update_vision(angles, sig):
+            self.counts["vision_used"] += 1
+            self._last_vision_t = t
+        else:
+            self.counts["vision_rejected"] += 1
+        if self.record and self.steps:
+            self.steps[-1].x_post, self.steps[-1].P_post = ekf.x.copy(), ekf.P.copy()
+
+    def _apply_late(self, t, angles, sig, kappa, offset) -> None:
+        """A vision result at or before the newest IMU time: roll back to the sample before it
+        and re-propagate the stored samples after it."""
+        hist = self._hist
+        if not hist or t < hist[0].t:
+            self.counts["vision_too_old"] += 1
+            return
+        k = len(hist) - 1
+        while k > 0 and hist[k].t > t:
+            k -= 1
+        base, replay = hist[k], list(hist)[k + 1:]
+        if replay and self.record:
+            raise ValueError("late vision result with record=True: feed inputs in time order")
+        self.ekf.x, self.ekf.P = base.x_post.copy(), base.P_post.copy()
+        item = (t, angles, sig, kappa, offset)
+        if not replay:  # exactly at the newest sample's time
+            self._vision_update(*item)
+            base.x_post, base.P_post = self.ekf.x.copy(), self.ekf.P.copy()
+            return
+        prev = base
+        for i, s in enumerate(replay):
+            self._process_sample(s, prev=prev, visions=[item] if i == 0 else ())
+            prev = s
+
+    # ---- outputs ----
+
+    @property
+    def t_s(self) -> float:
+        return self._hist[-1].t if self._hist else math.nan
+
+    def estimate(self) -> Estimate:
+        """The latest estimate (after the newest IMU sample)."""
+        return estimate_from(self.t_s, self.ekf.x, self.ekf.P, self.t_s - self._last_vision_t)
+
+
+def estimate_from(t_s: float, x: np.ndarray, P: np.ndarray, vision_age_s: float = math.nan) -> Estimate:
+    """Outputs of state ``x`` with covariance ``P``."""
+    rel = vision_hx(x)
+    H = vision_jacobian(x)
+    sig = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", H, P, H), 0.0))
+    d = np.sqrt(np.maximum(np.diag(P), 0.0))
+    return Estimate(
+        t_s=t_s, roll_rad=rel[0], pitch_rad=rel[1], yaw_rad=rel[2], bank_rad=x[S.BANK],
+        roll_world_rad=x[S.ROLL_W], pitch_world_rad=x[S.PITCH_W], grade_rad=x[S.GRADE],
+        roll_sigma_rad=sig[0], pitch_sigma_rad=sig[1], yaw_sigma_rad=sig[2], bank_sigma_rad=d[S.BANK],
+        roll_world_sigma_rad=d[S.ROLL_W], pitch_world_sigma_rad=d[S.PITCH_W],
+        gyro_bias_rad_s=tuple(x[S.GYRO_BIAS]), speed_m_s=x[S.SPEED], vision_age_s=vision_age_s,
+    )

@@ -1,0 +1,176 @@
+"""Offline fusion of a whole drive: IMU table + vision table -> fused table.
+
+The tables are the ones the other packages produce: :func:`imu.read_log` (``t_s``,
+``gyro_{x,y,z}_rad_s``, ``accel_{x,y,z}_m_s2``, ``speed_m_s``, ``fresh_*``; vehicle frame) and
+the vision estimator's ``vision.csv`` (``t_s``, ``roll_deg``, ``pitch_deg``, ``yaw_deg``,
+``valid``, ``*_sigma_deg``, ``curvature_1_m``, ``lateral_offset_m``). Both on the CAN log's
+clock. The same :class:`fusion.engine.FusionStream` that the prototype embeds does the work,
+fed in time order; a second one without vision gives the IMU-only attitude, from which the
+plain bank of Damon et al. 2018 (IMU roll minus vision roll) is formed for comparison.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from vision.frames import R_from_rpy, rpy_from_R, wrap_angle
+
+from .engine import FusionOptions, FusionStream
+from .errors import InputError
+from .smoother import rts_smooth
+
+__all__ = ["FusedRun", "fuse", "outputs_table", "vision_inputs"]
+
+GYRO_COLS = ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s")
+ACCEL_COLS = ("accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2")
+
+
+@dataclass
+class FusedRun:
+    """Result of :func:`fuse`."""
+
+    fused: pd.DataFrame
+    counts: dict
+    smoothed: bool
+    warnings: list[str] = field(default_factory=list)
+
+
+def _relative_rpy(X: np.ndarray) -> np.ndarray:
+    """(N, 3) relative roll, pitch, yaw of states X (N, n), vectorised."""
+    R_gp_from_v = R_from_rpy(X[:, 0], X[:, 1], X[:, 2])
+    R_gp_from_o = R_from_rpy(X[:, 3], X[:, 4], np.zeros(len(X)))
+    return np.stack(rpy_from_R(np.swapaxes(R_gp_from_o, -1, -2) @ R_gp_from_v), axis=-1)
+
+
+def outputs_table(t_s: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame:
+    """The fused table (degrees, with 1-sigma) of states ``X`` (N, n) with covariances ``P``."""
+    from .ekf import S
+
+    rel = _relative_rpy(X)
+    J = np.zeros((len(X), 3, X.shape[1]))
+    eps = 1e-6
+    for i in range(5):
+        Xp, Xm = X.copy(), X.copy()
+        Xp[:, i] += eps
+        Xm[:, i] -= eps
+        J[:, :, i] = wrap_angle(_relative_rpy(Xp) - _relative_rpy(Xm)) / (2 * eps)
+    sig_rel = np.sqrt(np.maximum(np.einsum("nij,njk,nik->ni", J, P, J), 0.0))
+    d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
+    deg = np.degrees
+    out = {
+        "t_s": t_s,
+        "roll_deg": deg(rel[:, 0]), "pitch_deg": deg(rel[:, 1]), "yaw_deg": deg(rel[:, 2]),
+        "bank_deg": deg(X[:, S.BANK]), "roll_world_deg": deg(X[:, S.ROLL_W]),
+        "pitch_world_deg": deg(X[:, S.PITCH_W]), "grade_deg": deg(X[:, S.GRADE]),
+        "roll_sigma_deg": deg(sig_rel[:, 0]), "pitch_sigma_deg": deg(sig_rel[:, 1]),
+        "yaw_sigma_deg": deg(sig_rel[:, 2]), "bank_sigma_deg": deg(d[:, S.BANK]),
+        "roll_world_sigma_deg": deg(d[:, S.ROLL_W]), "pitch_world_sigma_deg": deg(d[:, S.PITCH_W]),
+        "grade_sigma_deg": deg(d[:, S.GRADE]),
+        "bank_rate_deg_s": deg(X[:, S.BANK_RATE]),
+        "gyro_bias_x_deg_s": deg(X[:, S.GYRO_BIAS_X]), "gyro_bias_y_deg_s": deg(X[:, S.GYRO_BIAS_Y]),
+        "gyro_bias_z_deg_s": deg(X[:, S.GYRO_BIAS_Z]),
+        "accel_bias_x_m_s2": X[:, S.ACCEL_BIAS][:, 0], "accel_bias_y_m_s2": X[:, S.ACCEL_BIAS][:, 1],
+        "accel_bias_z_m_s2": X[:, S.ACCEL_BIAS][:, 2],
+        "speed_m_s": X[:, S.SPEED],
+    }
+    return pd.DataFrame(out)
+
+
+def vision_inputs(vision: pd.DataFrame) -> pd.DataFrame:
+    """Check the vision table and return it sorted by time with the columns the filter reads."""
+    need = ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "valid")
+    missing = [c for c in need if c not in vision.columns]
+    if missing:
+        raise InputError(f"vision table lacks column(s) {', '.join(missing)}")
+    v = vision.sort_values("t_s", kind="stable").reset_index(drop=True)
+    for c in ("roll_sigma_deg", "pitch_sigma_deg", "yaw_sigma_deg"):
+        if c not in v.columns:
+            v[c] = 0.3  # the paper's order of magnitude when the estimator gives none
+    for c in ("curvature_1_m", "lateral_offset_m"):
+        if c not in v.columns:
+            v[c] = np.nan
+    return v
+
+
+def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.0, 0.0),
+         has_pitch_rate: bool = True, options: FusionOptions = FusionOptions(), smooth: bool = False,
+         camera_time_offset_s: float = 0.0, progress: bool = False) -> FusedRun:
+    """Fuse a drive; see the module docstring.
+
+    Parameters
+    ----------
+    imu : DataFrame
+        IMU samples in the vehicle frame (``imu.read_log``'s table), strictly increasing ``t_s``.
+    vision : DataFrame or None
+        Vision results; None runs the IMU alone.
+    camera_time_offset_s : float
+        Added to the vision times (camera-to-CAN clock offset).
+    smooth : bool
+        Forward filter plus RTS smoother (offline only).
+    """
+    t = imu["t_s"].to_numpy(dtype=float)
+    if len(t) < 2:
+        raise InputError("the IMU table has fewer than two samples")
+    if np.any(np.diff(t) <= 0):
+        raise InputError("IMU sample times are not strictly increasing")
+    gyro = imu[list(GYRO_COLS)].to_numpy(dtype=float).copy()
+    accel = imu[list(ACCEL_COLS)].to_numpy(dtype=float)
+    speed = imu["speed_m_s"].to_numpy(dtype=float) if "speed_m_s" in imu else np.full(len(t), np.nan)
+    fresh = imu["fresh_speed"].to_numpy(dtype=bool) if "fresh_speed" in imu else np.isfinite(speed)
+    warnings: list[str] = []
+    if not has_pitch_rate:
+        gyro[:, 1] = 0.0  # not used: q = r tan(roll) inside the filter
+    bad = ~np.all(np.isfinite(gyro), axis=1) | ~np.all(np.isfinite(accel), axis=1)
+    if bad.any():
+        warnings.append(f"{int(bad.sum())} IMU samples without a valid gyro or accelerometer value were skipped")
+    keep = ~bad
+    t, gyro, accel, speed, fresh = t[keep], gyro[keep], accel[keep], speed[keep], fresh[keep]
+    if len(t) < 2:
+        raise InputError("no IMU sample has all gyro and accelerometer channels")
+
+    stream = FusionStream(lever_arm_m, has_pitch_rate, options, record=smooth)
+    if vision is not None:
+        v = vision_inputs(vision)
+        vt = v["t_s"].to_numpy(dtype=float) + camera_time_offset_s
+        vang = np.radians(v[["roll_deg", "pitch_deg", "yaw_deg"]].to_numpy(dtype=float))
+        vsig = np.radians(v[["roll_sigma_deg", "pitch_sigma_deg", "yaw_sigma_deg"]].to_numpy(dtype=float))
+        vvalid = v["valid"].to_numpy(dtype=bool)
+        vk = v["curvature_1_m"].to_numpy(dtype=float)
+        vd = v["lateral_offset_m"].to_numpy(dtype=float)
+    else:
+        vt = np.zeros(0)
+    X = np.empty((len(t), stream.ekf.dim_x))
+    Pm = np.empty((len(t), stream.ekf.dim_x, stream.ekf.dim_x))
+    j = 0
+    for k in tqdm(range(len(t)), desc="fuse", unit="sample", disable=not progress, mininterval=0.5):
+        while j < len(vt) and vt[j] <= t[k]:
+            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j])
+            j += 1
+        stream.add_imu(t[k], gyro[k], accel[k], speed[k], bool(fresh[k]))
+        X[k], Pm[k] = stream.ekf.x, stream.ekf.P
+    if smooth:
+        xs, Ps = rts_smooth(stream.steps, *stream.start)
+        at_sample = np.concatenate([[True], [s.imu_index >= 0 for s in stream.steps]])
+        X, Pm = xs[at_sample], Ps[at_sample]
+    table = outputs_table(t, X, Pm)
+    counts = dict(stream.counts)
+    counts["vision_after_last_imu"] = int(len(vt) - j)
+    return FusedRun(table, counts, smooth, warnings)
+
+
+def plain_bank(fused_imu_only: pd.DataFrame, vision: pd.DataFrame, camera_time_offset_s: float = 0.0) -> pd.DataFrame:
+    """Damon et al. 2018, section IV: bank = IMU roll (gravity-referenced) - vision roll.
+
+    Evaluated at the vision frames' times with the IMU-only filter's world roll.
+    """
+    v = vision_inputs(vision)
+    v = v[v["valid"].astype(bool)]
+    tv = v["t_s"].to_numpy(dtype=float) + camera_time_offset_s
+    roll_imu = np.interp(tv, fused_imu_only["t_s"], fused_imu_only["roll_world_deg"], left=math.nan, right=math.nan)
+    return pd.DataFrame({"t_s": tv, "bank_plain_deg": roll_imu - v["roll_deg"].to_numpy(dtype=float),
+                         "roll_world_imu_only_deg": roll_imu})
