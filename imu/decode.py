@@ -154,8 +154,8 @@ class SourceValues:
 
     ``present[i]`` is False for frames the multiplexer assigns to other signals; ``si`` is
     ``(n, k)`` in rad/s, m/s^2 or m/s for the source's k signals, NaN where ``valid`` is False;
-    ``out_of_range`` and ``raw_invalid`` count, per signal, present frames outside the DBC range
-    or equal to the signal's "invalid" raw value.
+    ``out_of_range`` and ``raw_invalid`` (``(n, k)`` bool) mark present frames outside the DBC
+    range or equal to the signal's "invalid" raw value.
     """
 
     present: np.ndarray
@@ -181,8 +181,8 @@ def decode_source(data: np.ndarray, src: SourcePlan, range_check: bool) -> Sourc
     present = mux_present(data, src.mux) if src.mux else np.ones(n, dtype=bool)
     si = np.empty((n, k))
     valid = np.empty((n, k), dtype=bool)
-    oor = np.zeros(k, dtype=np.int64)
-    rinv = np.zeros(k, dtype=np.int64)
+    oor = np.zeros((n, k), dtype=bool)
+    rinv = np.zeros((n, k), dtype=bool)
     for j, plan in enumerate(src.signals):
         phys = physical(data, plan.signal)
         ok = np.isfinite(phys)
@@ -194,8 +194,8 @@ def decode_source(data: np.ndarray, src: SourcePlan, range_check: bool) -> Sourc
         bad_raw = np.zeros(n, dtype=bool)
         if raw_inv is not None:
             bad_raw = extract_raw(data, plan.signal) == _U64(int(raw_inv) & ((1 << 64) - 1))
-        oor[j] = int(np.count_nonzero(outside & present))
-        rinv[j] = int(np.count_nonzero(bad_raw & present))
+        oor[:, j] = outside & present
+        rinv[:, j] = bad_raw & present
         ok &= ~bad_raw
         if range_check:
             ok &= ~outside

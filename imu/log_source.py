@@ -371,8 +371,8 @@ def read_log(path: str | Path, mapping: CanMapping, mount: ImuMount, *, progress
     finally:
         if gc_was_enabled:
             gc.enable()
-    if bar is not None:
-        bar.close()
+        if bar is not None:
+            bar.close()  # leave=False: the bar disappears, errors stay one line
     packed, chan_codes, unknown, error_frames, n_read = table_inputs
     if n_read == 0:
         detail = f": {state.problems[0]}" if state.problems else ""
@@ -422,7 +422,7 @@ def _progress_bar(path: Path, state: ReadState) -> Any:
     by_bytes = path.is_file() and not gz and suffix != ".mf4"
     total = path.stat().st_size if by_bytes else None
     return tqdm(total=total, unit="B" if by_bytes else " frames", unit_scale=True, desc=path.name,
-                leave=False, mininterval=0.2, file=sys.stderr)
+                leave=False, mininterval=0.2, delay=0.5, disable=None, file=sys.stderr)
 
 
 def _advance(bar: Any, state: ReadState) -> None:
@@ -538,9 +538,10 @@ def _finish(path: Path, plan: DecodePlan, mount: ImuMount, packed: _Packed, chan
         ok = ~dup
         frames.append(SourceFrames(t_s=tp[ok], si=vals.si[pres][ok], valid=vals.valid[pres][ok],
                                    channels=tuple(p.channel for p in s.signals)))
-        stats_raw.append((int(np.count_nonzero(dup)), vals))
+        stats_raw.append((int(np.count_nonzero(dup)), vals.out_of_range[pres][ok].sum(axis=0)))
     period = median_period_s(frames[plan.clock].t_s)
-    if math.isfinite(period) and mapping.align_window_s >= 0.5 * period and len(plan.sources) > 1:
+    imu_sources = sum(any(p.channel != "speed" for p in s.signals) for s in plan.sources)
+    if math.isfinite(period) and mapping.align_window_s >= 0.5 * period and imu_sources > 1:
         raise ImuConfigError(
             f"[can] align_window_s = {mapping.align_window_s} s is not less than half the "
             f"{plan.sources[plan.clock].name} period ({1e3 * period:.3f} ms): lower it"
@@ -579,13 +580,13 @@ def _summary(path, plan, mount, frames, stats_raw, per_msg, unaligned, unknown, 
     col_of = {ich: value_col[vch] for vch, ich, _ in vehicle_channel_map(mount)}
     for si, s in enumerate(plan.sources):
         fr = frames[si]
-        _, vals = stats_raw[si]
+        _, oor = stats_raw[si]
         for j, p in enumerate(s.signals):
             v = fr.valid[:, j]
             channels.append(ChannelStats(
                 channel=p.channel, column=col_of[p.channel], ref=p.ref, unit=p.unit,
                 decoded=int(np.count_nonzero(v)), invalid=int(np.count_nonzero(~v)),
-                out_of_range=int(vals.out_of_range[j]), rate_hz=rate_hz(fr.t_s[v]),
+                out_of_range=int(oor[j]), rate_hz=rate_hz(fr.t_s[v]),
             ))
     unk: dict[str, int] = {}
     if unknown:

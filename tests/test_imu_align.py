@@ -105,6 +105,8 @@ def test_twins_on_messy_streams(tmp_path, frames, range_check):
     for a, b in zip(summary.sources, live_summary.sources):
         assert (a.frames, a.duplicates, a.unaligned, a.backwards, a.wrong_length) == \
                (b.frames, b.duplicates, b.unaligned, b.backwards, b.wrong_length), a.name
+    for a, b in zip(summary.channels, live_summary.channels):
+        assert (a.decoded, a.invalid, a.out_of_range) == (b.decoded, b.invalid, b.out_of_range), a.channel
     # invariants of the table itself
     for ch in ("gyro_x", "gyro_z", "accel_x", "accel_z"):
         col = [c for c in COLUMNS if c.startswith(ch) and not c.startswith("fresh")][0]
