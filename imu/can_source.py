@@ -96,7 +96,6 @@ class StreamDecoder:
         for i, s in enumerate(self.plan.sources):
             self._by_id.setdefault(s.frame_id, []).append(i)
         self._msg = {fid: self.plan.sources[idx[0]] for fid, idx in self._by_id.items()}
-        self._width = {fid: s.length for fid, s in self._msg.items()}
         self._imu_sources = {i for i, s in enumerate(self.plan.sources)
                              if any(p.channel in _IMU for p in s.signals)}
         self._clock = self.plan.clock
@@ -111,7 +110,6 @@ class StreamDecoder:
         self._speed: deque[tuple[float, float, int]] = deque(maxlen=_MAX_SPEED_HISTORY)
         self._speed_n = 0
         self._prev_speed_idx = -1
-        self._last_emitted_t = -math.inf
         self.frames_read = 0
         self.frames_mapped = 0
         self.unknown_ids: dict[str, int] = {}
