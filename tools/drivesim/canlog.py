@@ -180,7 +180,7 @@ def write_can_log(out_path, imu, speed, *, dbc_path=None, start_epoch_s=1.7e9, e
         with can.LogReader(out_path) as reader:
             first = next(iter(reader))
         offset = first.timestamp - t_first
-    return float(offset)
+    return float(offset) + 0.0  # no -0.0 when the first frame is at drive time 0
 
 
 def _encode(msg: Any, values: dict[str, float]) -> bytes:
