@@ -27,11 +27,17 @@ Process (one IMU interval ``dt``, rates ``w = gyro - bias`` averaged over the in
                                                                  lane curvature kappa and the
                                                                  lateral offset d of vision
     bank += bank_rate dt;  speed += accel_x dt
-    bank_rate, grade, gyro_bias, accel_x: random walks
+    bank_rate' = -bank_rate / tau_bank + noise     (first-order Gauss-Markov)
+    grade, gyro_bias, accel_bias, accel_x: random walks
 
-The bank is an integrated random walk: superelevation runoffs are ramps of a few deg/s that a
-plain random walk could only follow by letting vision noise through; with a rate state the
-ramp is tracked without lag and the bank stays smooth where it is constant.
+The bank has a rate state: superelevation runoffs are ramps of a few deg/s that a plain random
+walk could only follow by letting vision noise through; with a rate state the ramp is tracked
+and the bank stays smooth where it is constant. The rate is mean-reverting (time constant
+``tau_bank``, about a second) rather than a random walk, so that without vision (lane loss)
+the bank holds instead of extrapolating the last runoff for seconds.
+
+Without a fresh lane curvature (lane loss) the road is assumed to turn with the vehicle
+(``kappa`` = NaN in :class:`ImuStep`): yaw relative to the road is held and its uncertainty grows.
 
 An IMU without a pitch-rate channel (Bosch MM5.10) uses the kinematic reconstruction
 ``q = r tan(roll_w)``, which holds when the pitch relative to level does not change (steady
@@ -104,10 +110,14 @@ class NoiseModel:
 
     gyro_noise_rad_s: float = math.radians(0.05)           # white noise of one gyro sample
     gyro_bias_walk_rad_s_sqrt_s: float = math.radians(0.005)
-    bank_rate_walk_rad_s_sqrt_s: float = math.radians(2.0)  # superelevation runoffs of a few deg/s
+    bank_rate_rad_s: float = math.radians(2.0)             # stationary 1-sigma of the bank rate
+    bank_rate_tau_s: float = 0.3                           # its correlation time
     grade_walk_rad_sqrt_s: float = math.radians(0.2)
     accel_x_walk_m_s2_sqrt_s: float = 3.0                  # longitudinal jerk
-    pitch_walk_rad_sqrt_s: float = math.radians(0.2)       # attitude motion the gyro does not see
+    pitch_walk_rad_sqrt_s: float = math.radians(0.05)      # attitude motion the gyro does not see
+    #: Without a lane fit the road is assumed to turn with the vehicle; how far the vehicle may
+    #: steer relative to the road meanwhile (lane changes), per sqrt(second).
+    yaw_rel_walk_no_lanes_rad_sqrt_s: float = math.radians(1.0)
     no_pitch_rate_walk_rad_sqrt_s: float = math.radians(3.0)  # pitch motion without a pitch gyro
     #: Accelerometer noise plus model error per axis (x, y, z). The vertical axis also carries
     #: suspension and road-profile motion that the model leaves out; trusting it more lets
@@ -139,7 +149,7 @@ class ImuStep:
 
     dt_s: float
     gyro_rad_s: np.ndarray           # mean measured rate over the interval (bias included)
-    curvature_1_m: float = 0.0       # road curvature at the vehicle (from the lane fit)
+    curvature_1_m: float = 0.0       # road curvature at the vehicle (lane fit); NaN: unknown
     lateral_offset_m: float = 0.0    # vehicle's offset from the line that curvature belongs to
 
 
@@ -257,7 +267,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.x_post, self.P_post = self.x.copy(), self.P.copy()
         # constant parts of Q per second
         q = np.zeros(DIM_X)
-        q[S.BANK_RATE] = n.bank_rate_walk_rad_s_sqrt_s**2
+        q[S.BANK_RATE] = 2.0 * n.bank_rate_rad_s**2 / n.bank_rate_tau_s   # stationary variance sigma^2
         q[S.GRADE] = n.grade_walk_rad_sqrt_s**2
         q[S.GYRO_BIAS] = n.gyro_bias_walk_rad_s_sqrt_s**2
         q[S.ACCEL_X] = n.accel_x_walk_m_s2_sqrt_s**2
@@ -275,7 +285,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         BX, BY, BZ = S.GYRO_BIAS_X, S.GYRO_BIAS_Y, S.GYRO_BIAS_Z
         cells = [(R_, R_), (R_, P_), (R_, BX), (R_, BY), (R_, BZ), (P_, R_), (P_, BY), (P_, BZ),
                  (Y_, R_), (Y_, P_), (Y_, BY), (Y_, BZ), (Y_, Y_), (Y_, S.SPEED),
-                 (S.SPEED, S.ACCEL_X), (S.BANK, S.BANK_RATE)]
+                 (S.SPEED, S.ACCEL_X), (S.BANK, S.BANK_RATE), (S.BANK_RATE, S.BANK_RATE)]
         self._F_idx = np.array([i * DIM_X + j for i, j in cells])
 
     # ---- body rates ----
@@ -297,13 +307,20 @@ class AttitudeEKF(ExtendedKalmanFilter):
         R = R_from_rpy_scalar(x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL]) @ so3_exp_scalar(p * dt, q * dt, r * dt)
         roll, pitch, yaw = rpy_from_R_scalar(R)
         x[S.ROLL_W], x[S.PITCH_W] = roll, pitch
-        x[S.YAW_REL] = yaw - self._road_turn_rate(x, u) * dt
+        if not math.isnan(u.curvature_1_m):
+            x[S.YAW_REL] = yaw - self._road_turn_rate(x, u) * dt
         x[S.BANK] += x[S.BANK_RATE] * dt
+        x[S.BANK_RATE] *= math.exp(-dt / self.noise.bank_rate_tau_s)
         x[S.SPEED] += x[S.ACCEL_X] * dt
         self.x = x
 
     def road_turn_rate(self, u: ImuStep) -> float:
-        """Heading rate of the road at the vehicle, rad/s: ``kappa v cos(yaw_rel) / (1 - kappa d)``."""
+        """Heading rate of the road at the vehicle, rad/s: ``kappa v cos(yaw_rel) / (1 - kappa d)``,
+        or the vehicle's own heading rate when there is no lane curvature (``kappa`` NaN)."""
+        if math.isnan(u.curvature_1_m):
+            p, q, r = self.body_rates(u.gyro_rad_s)
+            sf, cf = math.sin(self.x[S.ROLL_W]), math.cos(self.x[S.ROLL_W])
+            return (q * sf + r * cf) / math.cos(self.x[S.PITCH_W])
         return self._road_turn_rate(self.x, u)
 
     @staticmethod
@@ -338,16 +355,27 @@ class AttitudeEKF(ExtendedKalmanFilter):
                     r * sf / (cf**2 * ct) * dt, r * st / (cf * ct**2) * dt, 0.0, -dt / (cf * ct)]
             e = (1.0, 0.0, tt / cf, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0 / (cf * ct))
         k = u.curvature_1_m
-        scale = 1.0 / max(1.0 - k * u.lateral_offset_m, 0.2)
-        vals += [1.0 + k * x[S.SPEED] * math.sin(psi) * scale * dt, -k * math.cos(psi) * scale * dt, dt, dt]
+        if math.isnan(k):  # road turns with the vehicle: yaw relative to the road is held
+            vals[8:12] = [0.0, 0.0, 0.0, 0.0]
+            vals += [1.0, 0.0]
+            e = e[:6] + (0.0, 0.0, 0.0)
+        else:
+            scale = 1.0 / max(1.0 - k * u.lateral_offset_m, 0.2)
+            vals += [1.0 + k * x[S.SPEED] * math.sin(psi) * scale * dt, -k * math.cos(psi) * scale * dt]
+        vals += [dt, dt, math.exp(-dt / self.noise.bank_rate_tau_s)]
+        follow = math.isnan(k)
         F = self._I.copy()
         F.flat[self._F_idx] = vals
         E = np.array(e).reshape(3, 3)
         Q = np.diag(self._q_per_s * dt)
         Q[:3, :3] += (E @ E.T) * (self.noise.gyro_noise_rad_s * dt) ** 2
+        if follow:
+            Q[S.YAW_REL, S.YAW_REL] += self.noise.yaw_rel_walk_no_lanes_rad_sqrt_s**2 * dt
         # integrated random walks: the integral's own share
         Q[S.SPEED, S.SPEED] += self._q_per_s[S.ACCEL_X] * dt**3 / 3.0
+        Q[S.SPEED, S.ACCEL_X] = Q[S.ACCEL_X, S.SPEED] = self._q_per_s[S.ACCEL_X] * dt**2 / 2.0
         Q[S.BANK, S.BANK] += self._q_per_s[S.BANK_RATE] * dt**3 / 3.0
+        Q[S.BANK, S.BANK_RATE] = Q[S.BANK_RATE, S.BANK] = self._q_per_s[S.BANK_RATE] * dt**2 / 2.0
         return F, Q
 
     def propagate(self, u: ImuStep) -> None:

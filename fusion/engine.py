@@ -34,8 +34,14 @@ class FusionOptions:
     gravity_every: int = 1
     #: How far back late vision results are still applied, s.
     history_s: float = 1.0
-    #: Drop a lane-fit curvature older than this (the road heading then follows the gyro), s.
-    curvature_hold_s: float = 2.0
+    #: A lane-fit curvature older than this is dropped; the road is then assumed to turn with
+    #: the vehicle (yaw relative to the road held), s.
+    curvature_hold_s: float = 0.25
+    #: After this many vision results in a row fail the chi-square gate, the road states
+    #: (yaw relative to the road, bank, grade) are re-acquired from the next one: their
+    #: covariance is reset to the initial one, so that a filter that drifted while the lanes
+    #: were lost cannot lock itself out.
+    reacquire_after_rejections: int = 10
 
 
 @dataclass(frozen=True)
@@ -114,8 +120,9 @@ class FusionStream:
         self._curvature = (0.0, 0.0, -math.inf)   # kappa, offset, time
         self._last_vision_t = -math.inf
         self._road_rate = 0.0
+        self._rejected_in_row = 0
         self.counts = dict(imu=0, vision_used=0, vision_rejected=0, vision_invalid=0, vision_late=0,
-                           vision_too_old=0, gravity_rejected=0, speed_rejected=0)
+                           vision_too_old=0, vision_reacquired=0, gravity_rejected=0, speed_rejected=0)
 
     # ---- inputs ----
 
@@ -172,21 +179,16 @@ class FusionStream:
         if prev is None:
             self._init_from_accel(s)
             s.gyro_dot = np.zeros(3)
-            for v in visions:
-                self._vision_update(*v)
         else:
             t0, g0 = prev.t, prev.gyro
             for v in visions:
                 if v[0] >= s.t:
-                    continue  # at the sample's own time: applied after the propagation below
+                    continue  # at the sample's own time: applied after its measurements below
                 g_v = prev.gyro + (s.gyro - prev.gyro) * (v[0] - prev.t) / (s.t - prev.t)
                 self._propagate(t0, v[0], (g0 + g_v) / 2, imu_index=-1)
                 self._vision_update(*v)
                 t0, g0 = v[0], g_v
             self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index)
-            for v in visions:
-                if v[0] >= s.t:
-                    self._vision_update(*v)
             s.gyro_dot = (s.gyro - prev.gyro) / (s.t - prev.t)
         ekf = self.ekf
         if s.index % self.options.gravity_every == 0:
@@ -195,6 +197,11 @@ class FusionStream:
         if s.speed_fresh:
             if not ekf.update_speed(s.speed):
                 self.counts["speed_rejected"] += 1
+        # At the sample's own time (or before the very first sample): after its IMU
+        # measurements, in the same order as a late result would be applied.
+        for v in visions:
+            if prev is None or v[0] >= s.t:
+                self._vision_update(*v)
         s.x_post, s.P_post = ekf.x.copy(), ekf.P.copy()
         if self.record:
             if prev is None:
@@ -207,7 +214,7 @@ class FusionStream:
             return
         kappa, offset, t_k = self._curvature
         if t1 - t_k > self.options.curvature_hold_s:
-            kappa, offset = 0.0, 0.0
+            kappa, offset = math.nan, 0.0  # no lane fit: the road turns with the vehicle
         u = ImuStep(t1 - t0, gyro, kappa, offset)
         self.ekf.propagate(u)
         self._road_rate = self.ekf.road_turn_rate(u)
@@ -229,10 +236,32 @@ class FusionStream:
         if ekf.update_vision(angles, sig):
             self.counts["vision_used"] += 1
             self._last_vision_t = t
+            self._rejected_in_row = 0
         else:
             self.counts["vision_rejected"] += 1
+            self._rejected_in_row += 1
+            if self._rejected_in_row >= self.options.reacquire_after_rejections:
+                self._reacquire(angles)
+                self.counts["vision_reacquired"] += 1
+                if ekf.update_vision(angles, sig):
+                    self.counts["vision_used"] += 1
+                    self._last_vision_t = t
+                self._rejected_in_row = 0
         if self.record and self.steps:
             self.steps[-1].x_post, self.steps[-1].P_post = ekf.x.copy(), ekf.P.copy()
+
+    def _reacquire(self, angles) -> None:
+        """Reset the road states to agree with ``angles`` and reopen their covariance."""
+        ekf, n = self.ekf, self.options.noise
+        ekf.x[S.YAW_REL] = angles[2]
+        ekf.x[S.BANK] = ekf.x[S.ROLL_W] - angles[0]
+        ekf.x[S.GRADE] = ekf.x[S.PITCH_W] - angles[1]
+        ekf.x[S.BANK_RATE] = 0.0
+        for i, sig in ((S.YAW_REL, n.init_angle_rad), (S.BANK, n.init_bank_rad), (S.GRADE, n.init_grade_rad),
+                       (S.BANK_RATE, n.init_bank_rate_rad_s)):
+            ekf.P[i, :] = 0.0
+            ekf.P[:, i] = 0.0
+            ekf.P[i, i] = sig**2
 
     def _apply_late(self, t, angles, sig, kappa, offset) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it

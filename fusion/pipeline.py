@@ -20,11 +20,12 @@ from tqdm import tqdm
 
 from vision.frames import R_from_rpy, rpy_from_R, wrap_angle
 
+from .ekf import S
 from .engine import FusionOptions, FusionStream
 from .errors import InputError
 from .smoother import rts_smooth
 
-__all__ = ["FusedRun", "fuse", "outputs_table", "vision_inputs"]
+__all__ = ["FusedRun", "fuse", "outputs_table", "output_covariance", "plain_bank", "vision_inputs"]
 
 GYRO_COLS = ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s")
 ACCEL_COLS = ("accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2")
@@ -37,6 +38,8 @@ class FusedRun:
     fused: pd.DataFrame
     counts: dict
     smoothed: bool
+    #: (N, 4, 4) joint covariance of (roll, pitch, yaw, bank) in rad^2, per sample
+    cov: np.ndarray | None = None
     warnings: list[str] = field(default_factory=list)
 
 
@@ -47,19 +50,29 @@ def _relative_rpy(X: np.ndarray) -> np.ndarray:
     return np.stack(rpy_from_R(np.swapaxes(R_gp_from_o, -1, -2) @ R_gp_from_v), axis=-1)
 
 
-def outputs_table(t_s: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame:
-    """The fused table (degrees, with 1-sigma) of states ``X`` (N, n) with covariances ``P``."""
-    from .ekf import S
-
-    rel = _relative_rpy(X)
-    J = np.zeros((len(X), 3, X.shape[1]))
+def _output_jacobian(X: np.ndarray) -> np.ndarray:
+    """(N, 4, n) Jacobian of (roll, pitch, yaw, bank) relative outputs w.r.t. the state."""
+    J = np.zeros((len(X), 4, X.shape[1]))
     eps = 1e-6
     for i in range(5):
         Xp, Xm = X.copy(), X.copy()
         Xp[:, i] += eps
         Xm[:, i] -= eps
-        J[:, :, i] = wrap_angle(_relative_rpy(Xp) - _relative_rpy(Xm)) / (2 * eps)
-    sig_rel = np.sqrt(np.maximum(np.einsum("nij,njk,nik->ni", J, P, J), 0.0))
+        J[:, :3, i] = wrap_angle(_relative_rpy(Xp) - _relative_rpy(Xm)) / (2 * eps)
+    J[:, 3, S.BANK] = 1.0
+    return J
+
+
+def output_covariance(X: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) covariance of (roll, pitch, yaw, bank), rad^2."""
+    J = _output_jacobian(X)
+    return J @ P @ np.swapaxes(J, -1, -2)
+
+
+def outputs_table(t_s: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame:
+    """The fused table (degrees, with 1-sigma) of states ``X`` (N, n) with covariances ``P``."""
+    rel = _relative_rpy(X)
+    sig_rel = np.sqrt(np.maximum(np.diagonal(output_covariance(X, P), axis1=1, axis2=2)[:, :3], 0.0))
     d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
     deg = np.degrees
     out = {
@@ -160,7 +173,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     table = outputs_table(t, X, Pm)
     counts = dict(stream.counts)
     counts["vision_after_last_imu"] = int(len(vt) - j)
-    return FusedRun(table, counts, smooth, warnings)
+    return FusedRun(table, counts, smooth, output_covariance(X, Pm), warnings)
 
 
 def plain_bank(fused_imu_only: pd.DataFrame, vision: pd.DataFrame, camera_time_offset_s: float = 0.0) -> pd.DataFrame:

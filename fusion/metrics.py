@@ -1,0 +1,85 @@
+"""Accuracy against ground truth: RMSE per angle and the consistency of the fused sigma.
+
+Used by the report (when the drive has a ``truth.csv``), the benchmark and the tests.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.stats import chi2
+
+__all__ = ["ANGLES", "rmse_table", "interp_truth", "consistency", "Consistency"]
+
+#: Output angles compared with truth, as (column stem, truth column).
+ANGLES = ("roll", "pitch", "yaw", "bank", "roll_world", "pitch_world")
+
+
+def interp_truth(truth: pd.DataFrame, t_s: np.ndarray) -> pd.DataFrame:
+    """Truth columns linearly interpolated at ``t_s`` (NaN outside the truth's span)."""
+    tt = truth["t_s"].to_numpy(dtype=float)
+    out = {"t_s": t_s}
+    for c in truth.columns:
+        if c != "t_s" and np.issubdtype(truth[c].dtype, np.number):
+            out[c] = np.interp(t_s, tt, truth[c].to_numpy(dtype=float), left=np.nan, right=np.nan)
+    return pd.DataFrame(out)
+
+
+def rmse_table(estimate: pd.DataFrame, truth: pd.DataFrame, t_min_s: float = -math.inf,
+               angles=ANGLES, valid: np.ndarray | None = None) -> dict[str, float]:
+    """RMSE in degrees of each ``<angle>_deg`` column present in both, for ``t_s >= t_min_s``."""
+    t = estimate["t_s"].to_numpy(dtype=float)
+    tr = interp_truth(truth, t)
+    m = t >= t_min_s
+    if valid is not None:
+        m &= np.asarray(valid, dtype=bool)
+    out = {}
+    for a in angles:
+        c = f"{a}_deg"
+        if c in estimate and c in tr:
+            e = estimate[c].to_numpy(dtype=float)[m] - tr[c].to_numpy()[m]
+            e = (e + 180.0) % 360.0 - 180.0
+            e = e[np.isfinite(e)]
+            out[a] = float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
+    return out
+
+
+@dataclass(frozen=True)
+class Consistency:
+    """Normalised estimation error squared of (roll, pitch, yaw, bank) against truth."""
+
+    dof: int
+    band: tuple[float, float]      # 95 % two-sided chi-square band
+    fraction_inside: float         # of samples whose NEES is inside the band
+    fraction_above: float          # over-confident samples
+    fraction_below: float          # over-cautious samples
+    mean_nees: float               # expected: dof
+    per_angle_within_2sigma: dict  # fraction of |error| < 2 sigma per angle (expected 0.954)
+
+
+def consistency(fused: pd.DataFrame, truth: pd.DataFrame, cov: np.ndarray | None = None,
+                t_min_s: float = -math.inf, angles=("roll", "pitch", "yaw", "bank")) -> Consistency:
+    """NEES per sample. ``cov`` (N, k, k) is the joint covariance of the angles in rad^2 (from
+    :func:`fusion.pipeline.output_covariance`); without it the sigma columns are used as if
+    the angles were independent."""
+    t = fused["t_s"].to_numpy(dtype=float)
+    tr = interp_truth(truth, t)
+    m = (t >= t_min_s) & np.all([np.isfinite(tr[f"{a}_deg"].to_numpy()) for a in angles], axis=0)
+    e = np.radians(np.stack([fused[f"{a}_deg"].to_numpy(dtype=float) - tr[f"{a}_deg"].to_numpy()
+                             for a in angles], axis=1))[m]
+    e = (e + math.pi) % (2 * math.pi) - math.pi
+    sig = np.radians(np.stack([fused[f"{a}_sigma_deg"].to_numpy(dtype=float) for a in angles], axis=1))[m]
+    if cov is None:
+        nees = np.sum((e / sig) ** 2, axis=1)
+    else:
+        C = cov[m]
+        nees = np.einsum("ni,ni->n", e, np.linalg.solve(C, e[..., None])[..., 0])
+    k = len(angles)
+    lo, hi = chi2.ppf(0.025, k), chi2.ppf(0.975, k)
+    inside = (nees >= lo) & (nees <= hi)
+    within = {a: float(np.mean(np.abs(e[:, i]) < 2 * sig[:, i])) for i, a in enumerate(angles)}
+    return Consistency(k, (float(lo), float(hi)), float(inside.mean()), float((nees > hi).mean()),
+                       float((nees < lo).mean()), float(nees.mean()), within)

@@ -1,0 +1,241 @@
+"""Report of a run: time plots of every estimate (against truth when there is one), a summary
+table, PNG files and one self-contained HTML page (images embedded)."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .metrics import consistency, interp_truth, rmse_table
+
+__all__ = ["ReportInputs", "write_report", "summarise"]
+
+CONVERGENCE_S = 2.0
+
+
+@dataclass
+class ReportInputs:
+    fused: pd.DataFrame
+    vision: pd.DataFrame | None = None
+    imu_only: pd.DataFrame | None = None
+    plain_bank: pd.DataFrame | None = None
+    truth: pd.DataFrame | None = None
+    imu_truth: pd.DataFrame | None = None
+    cov: np.ndarray | None = None
+    counts: dict = field(default_factory=dict)
+    timings_s: dict = field(default_factory=dict)
+    time_offset: dict | None = None
+    warnings: list[str] = field(default_factory=list)
+    title: str = "vifusion run"
+    smoothed: bool = False
+    camera_time_offset_s: float = 0.0
+
+
+def summarise(r: ReportInputs) -> dict:
+    """Numbers of the report: RMSE per source against truth, consistency, counts, timings."""
+    out: dict = {"title": r.title, "smoothed": r.smoothed, "counts": r.counts, "timings_s": r.timings_s,
+                 "time_offset": r.time_offset, "warnings": r.warnings,
+                 "camera_time_offset_s": r.camera_time_offset_s}
+    f = r.fused
+    out["samples"] = int(len(f))
+    out["duration_s"] = float(f["t_s"].iloc[-1] - f["t_s"].iloc[0]) if len(f) else 0.0
+    if r.truth is not None and len(f):
+        t0 = float(f["t_s"].iloc[0]) + CONVERGENCE_S
+        acc = {"fused": rmse_table(f, r.truth, t0)}
+        if r.vision is not None and len(r.vision):
+            v = r.vision.assign(t_s=r.vision["t_s"] + r.camera_time_offset_s)
+            acc["vision"] = rmse_table(v, r.truth, t0, angles=("roll", "pitch", "yaw"),
+                                       valid=v["valid"].to_numpy(dtype=bool))
+            acc["vision"]["valid_fraction"] = float(np.mean(v["valid"].astype(bool)))
+        if r.plain_bank is not None and len(r.plain_bank):
+            pb = r.plain_bank.rename(columns={"bank_plain_deg": "bank_deg"})
+            acc["imu_minus_vision"] = rmse_table(pb, r.truth, t0, angles=("bank",))
+        if r.imu_only is not None:
+            acc["imu_only"] = rmse_table(r.imu_only, r.truth, t0, angles=("roll_world", "pitch_world"))
+        out["rmse_deg"] = acc
+        if all(f"{a}_deg" in r.truth for a in ("roll", "pitch", "yaw", "bank")):
+            out["consistency"] = asdict(consistency(f, r.truth, r.cov, t0))
+    return out
+
+
+def _fig_to_png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def _plots(r: ReportInputs) -> dict[str, bytes]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    f = r.fused
+    t0 = float(f["t_s"].iloc[0])
+    tf = f["t_s"].to_numpy() - t0
+    truth = interp_truth(r.truth, f["t_s"].to_numpy()) if r.truth is not None else None
+    vis = r.vision[r.vision["valid"].astype(bool)] if r.vision is not None else None
+    figs: dict[str, bytes] = {}
+
+    def band(ax, col, label, color):
+        y = f[f"{col}_deg"].to_numpy()
+        s = f[f"{col}_sigma_deg"].to_numpy() if f"{col}_sigma_deg" in f else None
+        ax.plot(tf, y, color=color, lw=1.2, label=label)
+        if s is not None:
+            ax.fill_between(tf, y - 2 * s, y + 2 * s, color=color, alpha=0.2, lw=0, label=f"{label} 2-sigma")
+
+    # 1. attitude relative to the road
+    fig, axes = plt.subplots(4, 1, figsize=(11, 11), sharex=True)
+    for ax, a in zip(axes, ("roll", "pitch", "yaw", "bank")):
+        if a != "bank" and vis is not None and len(vis):
+            ax.plot(vis["t_s"] + r.camera_time_offset_s - t0, vis[f"{a}_deg"], ".", ms=2.5, color="tab:orange",
+                    label="vision", alpha=0.7)
+        if a == "bank" and r.plain_bank is not None and len(r.plain_bank):
+            ax.plot(r.plain_bank["t_s"] - t0, r.plain_bank["bank_plain_deg"], ".", ms=2.5, color="tab:purple",
+                    alpha=0.6, label="IMU roll - vision roll (Damon 2018)")
+        band(ax, a, "fused", "tab:blue")
+        if truth is not None and f"{a}_deg" in truth:
+            ax.plot(tf, truth[f"{a}_deg"], "k--", lw=1.0, label="truth")
+        ax.set_ylabel(f"{a} [deg]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8, ncol=4)
+    axes[0].set_title(f"{r.title}: attitude relative to the road and road bank")
+    axes[-1].set_xlabel("time [s]")
+    figs["attitude.png"] = _fig_to_png(fig)
+    plt.close(fig)
+
+    # 2. relative to gravity
+    fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
+    for ax, a in zip(axes, ("roll_world", "pitch_world")):
+        band(ax, a, "fused", "tab:blue")
+        if r.imu_only is not None:
+            ax.plot(r.imu_only["t_s"] - t0, r.imu_only[f"{a}_deg"], color="tab:green", lw=1.0, label="IMU only")
+        if truth is not None and f"{a}_deg" in truth:
+            ax.plot(tf, truth[f"{a}_deg"], "k--", lw=1.0, label="truth")
+        ax.set_ylabel(f"{a} [deg]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8, ncol=4)
+    axes[0].set_title("attitude relative to gravity")
+    axes[-1].set_xlabel("time [s]")
+    figs["world.png"] = _fig_to_png(fig)
+    plt.close(fig)
+
+    # 3. errors against truth with the 2-sigma envelope
+    if truth is not None:
+        fig, axes = plt.subplots(4, 1, figsize=(11, 9), sharex=True)
+        for ax, a in zip(axes, ("roll", "pitch", "yaw", "bank")):
+            if f"{a}_deg" not in truth:
+                continue
+            e = f[f"{a}_deg"].to_numpy() - truth[f"{a}_deg"].to_numpy()
+            s = f[f"{a}_sigma_deg"].to_numpy()
+            ax.plot(tf, e, color="tab:blue", lw=1.0, label="fused - truth")
+            ax.fill_between(tf, -2 * s, 2 * s, color="tab:blue", alpha=0.15, lw=0, label="+-2 sigma")
+            if a != "bank" and vis is not None and len(vis):
+                tv = vis["t_s"].to_numpy() + r.camera_time_offset_s
+                tru_v = np.interp(tv, r.truth["t_s"], r.truth[f"{a}_deg"])
+                ax.plot(tv - t0, vis[f"{a}_deg"].to_numpy() - tru_v, ".", ms=2, color="tab:orange", alpha=0.5,
+                        label="vision - truth")
+            ax.set_ylabel(f"{a} error [deg]")
+            ax.grid(alpha=0.3)
+            ax.legend(loc="upper right", fontsize=8, ncol=3)
+        axes[0].set_title("errors against truth")
+        axes[-1].set_xlabel("time [s]")
+        figs["errors.png"] = _fig_to_png(fig)
+        plt.close(fig)
+
+    # 4. sensor biases
+    fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
+    for i, ax_name in enumerate("xyz"):
+        axes[0].plot(tf, f[f"gyro_bias_{ax_name}_deg_s"], lw=1.0, label=f"gyro {ax_name}", color=f"C{i}")
+        axes[1].plot(tf, f[f"accel_bias_{ax_name}_m_s2"], lw=1.0, label=f"accel {ax_name}", color=f"C{i}")
+        if r.imu_truth is not None and f"gyro_bias_{ax_name}_rad_s" in r.imu_truth:
+            axes[0].plot(r.imu_truth["t_s"] - t0, np.degrees(r.imu_truth[f"gyro_bias_{ax_name}_rad_s"]), "--",
+                         color=f"C{i}", lw=0.8)
+            axes[1].plot(r.imu_truth["t_s"] - t0, r.imu_truth[f"accel_bias_{ax_name}_m_s2"], "--",
+                         color=f"C{i}", lw=0.8)
+    axes[0].set_ylabel("gyro bias [deg/s]")
+    axes[1].set_ylabel("accel bias [m/s^2]")
+    axes[0].set_title("sensor bias estimates (dashed: truth)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8, ncol=3)
+    axes[-1].set_xlabel("time [s]")
+    figs["biases.png"] = _fig_to_png(fig)
+    plt.close(fig)
+    return figs
+
+
+def _table_html(summary: dict) -> str:
+    rows = []
+    acc = summary.get("rmse_deg")
+    if acc:
+        cols = ["roll", "pitch", "yaw", "bank", "roll_world", "pitch_world"]
+        head = "".join(f"<th>{c}</th>" for c in cols)
+        rows.append(f"<h2>RMSE against truth [deg] (after {CONVERGENCE_S:g} s)</h2><table><tr><th>source</th>{head}</tr>")
+        for src, vals in acc.items():
+            cells = "".join(f"<td>{vals[c]:.3f}</td>" if c in vals and math.isfinite(vals[c]) else "<td></td>"
+                            for c in cols)
+            rows.append(f"<tr><td>{html.escape(src)}</td>{cells}</tr>")
+        rows.append("</table>")
+    c = summary.get("consistency")
+    if c:
+        rows.append("<h2>Consistency of the fused sigma</h2><p>NEES of (roll, pitch, yaw, bank): "
+                    f"{100 * c['fraction_inside']:.1f} % of samples inside the 95 % chi-square band "
+                    f"[{c['band'][0]:.2f}, {c['band'][1]:.2f}] ({100 * c['fraction_above']:.1f} % above, "
+                    f"{100 * c['fraction_below']:.1f} % below); mean NEES {c['mean_nees']:.2f} "
+                    f"(expected {c['dof']}).</p>")
+    rows.append("<h2>Run</h2><table>")
+    for k, v in summary.get("counts", {}).items():
+        rows.append(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>")
+    for k, v in summary.get("timings_s", {}).items():
+        rows.append(f"<tr><td>time: {html.escape(k)}</td><td>{v:.2f} s</td></tr>")
+    to = summary.get("time_offset")
+    if to:
+        rows.append(f"<tr><td>camera-to-CAN offset estimate</td><td>{html.escape(json.dumps(to))}</td></tr>")
+    rows.append("</table>")
+    if summary.get("warnings"):
+        rows.append("<h2>Warnings</h2><ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in summary["warnings"]) + "</ul>")
+    return "\n".join(rows)
+
+
+def write_report(r: ReportInputs, out_dir: str | Path) -> dict:
+    """Write ``summary.json``, PNG plots and ``report.html`` into ``out_dir``; returns the summary."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    summary = summarise(r)
+    figs = _plots(r) if len(r.fused) else {}
+    for name, png in figs.items():
+        _atomic_write(out_dir / name, png)
+    body = [f"<h1>{html.escape(r.title)}</h1>", _table_html(summary)]
+    for name, png in figs.items():
+        body.append(f'<h2>{html.escape(name[:-4])}</h2><img src="data:image/png;base64,{base64.b64encode(png).decode()}"/>')
+    page = ("<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(r.title) + "</title>"
+            "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
+            "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>"
+            + "\n".join(body) + "</body></html>")
+    _atomic_write(out_dir / "report.html", page.encode())
+    _atomic_write(out_dir / "summary.json", json.dumps(summary, indent=2, default=_json_default).encode())
+    return summary
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)

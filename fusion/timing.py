@@ -1,0 +1,101 @@
+"""Camera-to-CAN clock offset, estimated from the data.
+
+The vision roll (relative to the road) changes mostly with the vehicle's own roll, which the
+gyro's x axis measures; the road's bank changes far more slowly. So the vision roll rate and
+the gyro roll rate are the same signal, shifted by the clock offset. The offset is the lag that
+maximises their correlation, refined to sub-sample precision by a parabola through the peak.
+
+The returned ``offset_s`` is what to add to the frame times (``frames.csv``) to put them on
+the CAN clock, i.e. the ``[fusion] camera_time_offset_s`` of the config.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["TimeOffset", "estimate_camera_offset"]
+
+
+@dataclass(frozen=True)
+class TimeOffset:
+    offset_s: float          # add to frame times; NaN when not estimable
+    correlation: float       # peak normalised correlation
+    n_frames: int            # vision frames used
+    roll_rate_std_deg_s: float
+    reason: str = ""         # why it is not estimable, if it is not
+
+    @property
+    def ok(self) -> bool:
+        return math.isfinite(self.offset_s)
+
+
+def estimate_camera_offset(vision: pd.DataFrame, imu: pd.DataFrame, max_offset_s: float = 0.5,
+                           step_s: float = 0.002, min_correlation: float = 0.6,
+                           min_roll_rate_std_deg_s: float = 1.0) -> TimeOffset:
+    """Cross-correlate the vision roll rate with the gyro roll rate (see module docstring).
+
+    Parameters
+    ----------
+    vision : DataFrame with ``t_s``, ``roll_deg``, ``valid``
+    imu : DataFrame with ``t_s``, ``gyro_x_rad_s`` (vehicle frame)
+    """
+    from scipy.signal import savgol_filter
+
+    v = vision[vision["valid"].astype(bool)].sort_values("t_s")
+    tv = v["t_s"].to_numpy(dtype=float)
+    roll = np.radians(v["roll_deg"].to_numpy(dtype=float))
+    if len(tv) < 20:
+        return TimeOffset(math.nan, math.nan, len(tv), math.nan, "fewer than 20 valid vision frames")
+    ti = imu["t_s"].to_numpy(dtype=float)
+    p = imu["gyro_x_rad_s"].to_numpy(dtype=float)
+    good = np.isfinite(p)
+    ti, p = ti[good], p[good]
+    if len(ti) < 2:
+        return TimeOffset(math.nan, math.nan, 0, math.nan, "no gyro roll rate")
+    # Uniform grid at the frame rate over the overlap; grid points more than two frames from a
+    # valid frame are left out (lane loss).
+    frame_dt = float(np.median(np.diff(tv)))
+    lo, hi = max(tv[0], ti[0] + max_offset_s), min(tv[-1], ti[-1] - max_offset_s)
+    if hi - lo < 20 * frame_dt:
+        return TimeOffset(math.nan, math.nan, 0, math.nan, "too little overlap between vision and IMU")
+    grid = np.arange(lo, hi, frame_dt)
+    near = np.abs(tv[np.clip(np.searchsorted(tv, grid), 0, len(tv) - 1)] - grid) <= 2 * frame_dt
+    roll_g = np.interp(grid, tv, roll)
+    # Savitzky-Golay over ~0.3 s: the derivative of the vision roll, and the same smoothing of
+    # the gyro rate, so that both have the same bandwidth.
+    win = max(5, int(round(0.3 / frame_dt)) | 1)
+    rate = savgol_filter(roll_g, win, 2, deriv=1, delta=frame_dt)
+    n_box = max(1, int(round(frame_dt / float(np.median(np.diff(ti))))))
+    p_box = np.convolve(p, np.ones(n_box) / n_box, mode="same")
+    keep = near.copy()
+    keep[: win // 2], keep[-(win // 2):] = False, False
+    std = math.degrees(float(np.std(rate[keep]))) if keep.any() else math.nan
+    n_used = int(keep.sum())
+    if n_used < 20:
+        return TimeOffset(math.nan, math.nan, n_used, std, "too few frames with lanes in the overlap")
+    if not std >= min_roll_rate_std_deg_s:
+        return TimeOffset(math.nan, math.nan, n_used, std,
+                          f"roll barely moves (rate std {std:.2f} deg/s < {min_roll_rate_std_deg_s})")
+    r0 = rate[keep] - rate[keep].mean()
+    lags = np.arange(-max_offset_s, max_offset_s + step_s / 2, step_s)
+    corr = np.empty(len(lags))
+    for i, lag in enumerate(lags):
+        g = savgol_filter(np.interp(grid + lag, ti, p_box), win, 2)[keep]
+        g0 = g - g.mean()
+        corr[i] = float(r0 @ g0 / math.sqrt((r0 @ r0) * (g0 @ g0) + 1e-300))
+    k = int(np.argmax(corr))
+    peak = corr[k]
+    if not peak >= min_correlation:
+        return TimeOffset(math.nan, peak, n_used, std, f"peak correlation {peak:.2f} < {min_correlation}")
+    lag = lags[k]
+    if 0 < k < len(lags) - 1:
+        a, b, c = corr[k - 1], corr[k], corr[k + 1]
+        den = a - 2 * b + c
+        if den < 0:
+            lag += 0.5 * (a - c) / den * step_s
+    # vision at frame time t matches the gyro at t + lag: add lag to the frame times
+    return TimeOffset(float(lag), float(peak), n_used, std)

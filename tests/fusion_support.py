@@ -1,0 +1,81 @@
+"""Shared inputs of the fusion tests: a simulated drive's IMU table (vehicle frame, as
+``imu.read_log`` gives it) and vision results drawn from the truth with known noise.
+
+Drawing the vision results from the truth (instead of rendering and running the estimator)
+isolates the filter: its errors can then be compared with the noise it was given.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from drivesim.drive import build_road, truth_frame
+from drivesim.imu_model import simulate_imu
+from drivesim.scenario import load_scenario
+from drivesim.trajectory import Trajectory
+from imu.config import ImuMount
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "configs" / "scenarios"
+
+
+@dataclasses.dataclass
+class SynthDrive:
+    imu: pd.DataFrame
+    vision: pd.DataFrame
+    truth: pd.DataFrame
+    imu_truth: pd.DataFrame
+    lever_arm_m: tuple
+    traj: Trajectory
+
+
+@lru_cache(maxsize=8)
+def synth_drive(scenario: str = "banked_curves_60s.toml", duration_s: float | None = None,
+                vision_sigma_deg: float = 0.3, fps: float = 30.0, seed: int = 0,
+                accel_bias_m_s2: tuple = (0.03, 0.01, -0.03), pitch_rate: bool = True) -> SynthDrive:
+    sc = load_scenario(SCENARIOS / scenario)
+    imu_spec = dataclasses.replace(sc.imu, accel_bias_m_s2=accel_bias_m_s2, pitch_rate=pitch_rate)
+    sc = dataclasses.replace(sc, imu=imu_spec, duration_s=duration_s or sc.duration_s)
+    traj = Trajectory(build_road(sc), sc.motion)
+    rng = np.random.default_rng(seed)
+    meas, speed, imu_truth = simulate_imu(traj, sc.imu, sc.duration_s, rng)
+    R = ImuMount(sc.imu.axes, sc.imu.position_m).R_v_from_imu
+    t = meas["t_s"].to_numpy()
+    imu = pd.DataFrame({"t_s": t})
+    g = meas[[f"gyro_{a}_rad_s" for a in "xyz"]].to_numpy() @ R.T
+    f = meas[[f"accel_{a}_m_s2" for a in "xyz"]].to_numpy() @ R.T
+    for i, a in enumerate("xyz"):
+        imu[f"gyro_{a}_rad_s"] = g[:, i]
+    for i, a in enumerate("xyz"):
+        imu[f"accel_{a}_m_s2"] = f[:, i]
+    if not pitch_rate:
+        imu["gyro_y_rad_s"] = np.nan
+    imu["speed_m_s"] = np.interp(t, speed["t_s"], speed["speed_m_s"])
+    fresh = np.zeros(len(t), dtype=bool)
+    fresh[np.clip(np.searchsorted(t, speed["t_s"].to_numpy()), 0, len(t) - 1)] = True
+    imu["fresh_speed"] = fresh
+    tf = np.arange(0.0, sc.duration_s, 1.0 / fps)
+    tr = traj.truth(tf)
+    noise = rng.standard_normal((len(tf), 3)) * vision_sigma_deg
+    vision = pd.DataFrame({
+        "t_s": tf, "frame": np.arange(len(tf)),
+        "roll_deg": np.degrees(tr["roll"]) + noise[:, 0], "pitch_deg": np.degrees(tr["pitch"]) + noise[:, 1],
+        "yaw_deg": np.degrees(tr["yaw"]) + noise[:, 2], "valid": True,
+        "roll_sigma_deg": vision_sigma_deg, "pitch_sigma_deg": vision_sigma_deg, "yaw_sigma_deg": vision_sigma_deg,
+        "curvature_1_m": tr["curvature_1_m"], "lateral_offset_m": tr["lateral_offset_m"],
+    })
+    tt = np.arange(0.0, sc.duration_s, 0.01)
+    truth = truth_frame(traj, tt, tt)
+    return SynthDrive(imu, vision, truth, imu_truth, tuple(sc.imu.position_m), traj)
+
+
+def rmse_deg(est: pd.DataFrame, truth: pd.DataFrame, col: str, t_min: float = 2.0, mask=None) -> float:
+    t = est["t_s"].to_numpy()
+    m = t >= t_min if mask is None else (t >= t_min) & mask
+    ref = np.interp(t[m], truth["t_s"], truth[col])
+    return float(math.sqrt(np.mean((est[col].to_numpy()[m] - ref) ** 2)))

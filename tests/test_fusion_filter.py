@@ -1,0 +1,207 @@
+"""The fusion filter against simulator truth, with vision results drawn from the truth plus
+known noise (so that the filter, not the vision estimator, is under test)."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fusion.ekf import DIM_X, AttitudeEKF, ImuStep, S, vision_jacobian, vision_jacobian_numeric
+from fusion.engine import FusionOptions, FusionStream
+from fusion.metrics import consistency
+from fusion.pipeline import fuse, plain_bank
+from fusion.timing import estimate_camera_offset
+
+from fusion_support import rmse_deg, synth_drive
+
+VISION_SIGMA_DEG = 0.3
+
+
+@pytest.fixture(scope="module")
+def drive():
+    return synth_drive("banked_curves_60s.toml", vision_sigma_deg=VISION_SIGMA_DEG)
+
+
+@pytest.fixture(scope="module")
+def forward(drive):
+    return fuse(drive.imu, drive.vision, lever_arm_m=drive.lever_arm_m)
+
+
+@pytest.fixture(scope="module")
+def smoothed(drive):
+    return fuse(drive.imu, drive.vision, lever_arm_m=drive.lever_arm_m, smooth=True)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(-0.6, 0.6), min_size=5, max_size=5))
+def test_vision_jacobian_matches_central_differences(angles):
+    x = np.zeros(DIM_X)
+    x[:5] = angles
+    np.testing.assert_allclose(vision_jacobian(x), vision_jacobian_numeric(x), atol=1e-8)
+
+
+@settings(max_examples=60, deadline=None)
+@given(roll=st.floats(-0.8, 0.8), pitch=st.floats(-0.2, 0.2), yaw=st.floats(-0.2, 0.2),
+       w=st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3), kappa=st.floats(-0.01, 0.01),
+       has_q=st.booleans())
+def test_transition_jacobian_matches_the_propagation(roll, pitch, yaw, w, kappa, has_q):
+    """F = I + A dt against central differences of the nonlinear one-step propagation; they
+    differ by O(dt^2), so at dt = 1 ms the tolerance is 1e-5 per entry."""
+    ekf = AttitudeEKF(has_pitch_rate=has_q)
+    x0 = np.zeros(DIM_X)
+    x0[[S.ROLL_W, S.PITCH_W, S.YAW_REL]] = roll, pitch, yaw
+    x0[S.GYRO_BIAS] = (0.01, -0.02, 0.015)
+    x0[S.SPEED], x0[S.ACCEL_X], x0[S.BANK_RATE] = 20.0, 0.5, 0.02
+    u = ImuStep(1e-3, np.asarray(w), kappa, 1.0)
+    ekf.x = x0.copy()
+    F, _ = ekf.transition(u)
+
+    def step(x):
+        ekf.x = x.copy()
+        ekf.predict_x(u)
+        return ekf.x
+
+    Fn = np.zeros((DIM_X, DIM_X))
+    for i in range(DIM_X):
+        e = np.zeros(DIM_X)
+        e[i] = 1e-6
+        Fn[:, i] = (step(x0 + e) - step(x0 - e)) / 2e-6
+    np.testing.assert_allclose(F, Fn, atol=1e-5)
+
+
+def test_gravity_model_matches_the_simulated_accelerometer(drive):
+    """With the true state, the specific-force model reproduces the noise-free simulated
+    accelerometer to 0.02 m/s^2 on the longitudinal and lateral axes on 99 % of samples (pitch
+    oscillation, banked curves, lever arm included); the rest are the instants where a
+    clothoid starts and the simulated roll rate has a kink, whose angular acceleration the
+    finite differences only smear. The vertical axis is allowed 0.2 m/s^2: the model leaves out
+    the vertical motion of a path off the centre line in a bank runoff."""
+    traj = drive.traj
+    t = np.arange(1.0, 59.0, 0.137)
+    w = traj.body_rate_rad_s(t)
+    f_true = traj.specific_force_m_s2(t, drive.lever_arm_m)
+    h = 1e-3
+    wd = (traj.body_rate_rad_s(t + h) - traj.body_rate_rad_s(t - h)) / (2 * h)
+    tr = traj.truth(t)
+    v = traj.pose(t)["speed_m_s"]
+    a = (traj.pose(t + h)["speed_m_s"] - traj.pose(t - h)["speed_m_s"]) / (2 * h)
+    ekf = AttitudeEKF(lever_arm_m=drive.lever_arm_m)
+    res = []
+    for k in range(len(t)):
+        x = np.zeros(DIM_X)
+        x[S.ROLL_W], x[S.PITCH_W] = tr["roll_world"][k], tr["pitch_world"][k]
+        x[S.YAW_REL] = tr["yaw_world"][k] - tr["road_heading"][k]
+        x[S.BANK], x[S.GRADE] = tr["bank"][k], tr["road_pitch"][k]
+        x[S.SPEED], x[S.ACCEL_X] = v[k], a[k]
+        ekf.x = x
+        turn = tr["curvature_1_m"][k] * v[k] / (1 - tr["curvature_1_m"][k] * tr["lateral_offset_m"][k])
+        f, _ = ekf.specific_force_model(w[k], wd[k], turn)
+        res.append(f_true[k] - f)
+    p99 = np.percentile(np.abs(res), 99, axis=0)
+    assert p99[0] < 0.02 and p99[1] < 0.02 and p99[2] < 0.2, p99
+
+
+def test_fused_attitude_beats_vision_alone(drive, forward):
+    """Vision noise is 0.3 deg per frame (white); the gyro carries the attitude between
+    frames, so the fused angles must be clearly better: roll and pitch under 0.2 deg, yaw
+    under 0.1 deg RMS after 2 s."""
+    f = forward.fused
+    for col, bar in (("roll_deg", 0.2), ("pitch_deg", 0.2), ("yaw_deg", 0.1)):
+        fused = rmse_deg(f, drive.truth, col)
+        vision = rmse_deg(drive.vision, drive.truth, col)
+        assert fused < bar, (col, fused)
+        assert fused < 0.7 * vision, (col, fused, vision)
+
+
+def test_bank_beats_the_plain_imu_minus_vision_difference(drive, forward):
+    """Bank RMSE under 0.3 deg (issue 5) with an accelerometer whose lateral bias is 0.01 m/s^2
+    (0.06 deg of bank, unobservable), and better than Damon et al.'s plain difference of the
+    IMU-only roll and the vision roll."""
+    fused_bank = rmse_deg(forward.fused, drive.truth, "bank_deg")
+    imu_only = fuse(drive.imu, None, lever_arm_m=drive.lever_arm_m).fused
+    pb = plain_bank(imu_only, drive.vision).rename(columns={"bank_plain_deg": "bank_deg"})
+    plain = rmse_deg(pb, drive.truth, "bank_deg")
+    assert fused_bank < 0.3, fused_bank
+    assert fused_bank < plain, (fused_bank, plain)
+
+
+def test_gyro_biases_are_estimated(drive, forward):
+    """The gyro biases (0.2, 0.15, -0.3 deg/s in the vehicle frame) come out within 0.03 deg/s
+    at the end: 0.03 deg/s of yaw-rate bias is 0.07 deg of roll at 22 m/s."""
+    est = forward.fused[["gyro_bias_x_deg_s", "gyro_bias_y_deg_s", "gyro_bias_z_deg_s"]].to_numpy()[-1]
+    true = np.degrees(drive.imu_truth[["gyro_bias_x_rad_s", "gyro_bias_y_rad_s", "gyro_bias_z_rad_s"]].to_numpy()[-1])
+    np.testing.assert_allclose(est, true, atol=0.03)
+
+
+def test_smoother_beats_the_forward_filter(drive, forward, smoothed):
+    for col in ("roll_deg", "pitch_deg", "bank_deg"):
+        assert rmse_deg(smoothed.fused, drive.truth, col) < rmse_deg(forward.fused, drive.truth, col), col
+    # At the last sample the smoother has no future: it equals the filter.
+    np.testing.assert_allclose(smoothed.fused.iloc[-1]["roll_deg"], forward.fused.iloc[-1]["roll_deg"], atol=1e-9)
+
+
+def test_fused_sigma_is_consistent(drive, forward, smoothed):
+    """NEES of (roll, pitch, yaw, bank) inside its 95 % chi-square band on >= 90 % of samples."""
+    for run in (forward, smoothed):
+        c = consistency(run.fused, drive.truth, run.cov, t_min_s=2.0)
+        assert c.fraction_inside >= 0.9, c
+
+
+def test_lane_loss(drive):
+    """Vision gone for 5 s (20-25 s, into the right-hand banked curve): roll error stays under
+    1 deg, and 2 s after the lanes return the error is back to its level before the loss."""
+    v = drive.vision.copy()
+    lost = (v["t_s"] >= 20.0) & (v["t_s"] < 25.0)
+    v.loc[lost, "valid"] = False
+    f = fuse(drive.imu, v, lever_arm_m=drive.lever_arm_m).fused
+    t = f["t_s"].to_numpy()
+    err = np.abs(f["roll_deg"].to_numpy() - np.interp(t, drive.truth["t_s"], drive.truth["roll_deg"]))
+    assert err[(t >= 20.0) & (t < 25.0)].max() < 1.0
+    before = rmse_deg(f, drive.truth, "roll_deg", mask=(t >= 10.0) & (t < 20.0))
+    after = rmse_deg(f, drive.truth, "roll_deg", mask=(t >= 27.0) & (t < 35.0))
+    assert after < 1.3 * before, (before, after)
+
+
+def test_late_vision_results_give_the_same_estimate(drive):
+    """Vision results arriving 45 ms late (processing latency) are applied at their capture
+    time by rolling back and re-propagating: the estimate equals the in-time one."""
+    imu, vis = drive.imu.iloc[:1500], drive.vision[drive.vision["t_s"] < 14.9]
+
+    def run(delay_s):
+        s = FusionStream(drive.lever_arm_m, options=FusionOptions(history_s=0.5))
+        pending = list(vis.itertuples())
+        for row in imu.itertuples():
+            while pending and pending[0].t_s + delay_s <= row.t_s:
+                p = pending.pop(0)
+                s.add_vision(p.t_s, np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]), np.radians([0.3] * 3),
+                             True, p.curvature_1_m, p.lateral_offset_m)
+            s.add_imu(row.t_s, [row.gyro_x_rad_s, row.gyro_y_rad_s, row.gyro_z_rad_s],
+                      [row.accel_x_m_s2, row.accel_y_m_s2, row.accel_z_m_s2], row.speed_m_s, row.fresh_speed)
+        return s
+
+    on_time, late = run(0.0), run(0.045)
+    assert late.counts["vision_late"] > 300
+    np.testing.assert_allclose(late.ekf.x, on_time.ekf.x, atol=1e-9)
+    np.testing.assert_allclose(late.ekf.P, on_time.ekf.P, atol=1e-12)
+
+
+def test_imu_without_pitch_rate():
+    """Bosch MM5.10-like IMU (no pitch-rate channel): the kinematic reconstruction q = r tan(roll)
+    keeps roll and pitch relative to the road within 0.25 deg RMS."""
+    d = synth_drive("banked_curves_60s.toml", vision_sigma_deg=VISION_SIGMA_DEG, pitch_rate=False)
+    f = fuse(d.imu, d.vision, lever_arm_m=d.lever_arm_m, has_pitch_rate=False).fused
+    assert rmse_deg(f, d.truth, "roll_deg") < 0.25
+    assert rmse_deg(f, d.truth, "pitch_deg") < 0.25
+    assert rmse_deg(f, d.truth, "bank_deg") < 0.35
+
+
+@pytest.mark.parametrize("offset_s", [0.04, -0.1])
+def test_camera_time_offset_is_recovered(drive, offset_s):
+    """Frame times shifted by a logger's sync error: the cross-correlation of the vision and
+    gyro roll rates finds the correction within 3 ms (a tenth of a frame at 30 fps)."""
+    v = drive.vision.assign(t_s=drive.vision["t_s"] + offset_s)
+    est = estimate_camera_offset(v, drive.imu)
+    assert est.ok, est
+    assert abs(est.offset_s - (-offset_s)) < 0.003, est
