@@ -36,6 +36,12 @@ from .samples import (
 
 __all__ = ["StreamDecoder", "LiveSource"]
 
+#: On a quiet bus, how long past the alignment window a sample waits for its other frames
+#: before it is yielded incomplete, s. Generous on purpose: a loaded machine wakes the reading
+#: thread late, and a tight margin would then split samples that the log path joins. It does
+#: not delay complete samples, which are yielded as soon as their last frame arrives.
+QUIET_BUS_MARGIN_S = 0.02
+
 _IMU = set(GYRO + ACCEL)
 #: Gaps kept per source for the summary of a long-running stream.
 _MAX_GAPS = 1000
@@ -281,12 +287,13 @@ class StreamDecoder:
         self._last_sample_t = T
         return ImuSample(received_s=released_s, **vals)
 
-    def expire(self, now_s: float | None = None, margin_s: float = 0.002) -> list[ImuSample]:
+    def expire(self, now_s: float | None = None, margin_s: float | None = None) -> list[ImuSample]:
         """On a quiet bus: emit samples whose clock frame arrived more than window + margin ago.
 
         ``now_s`` and the arrival times are ``time.perf_counter()`` seconds.
         """
         now_s = time.perf_counter() if now_s is None else now_s
+        margin_s = QUIET_BUS_MARGIN_S if margin_s is None else margin_s
         out = []
         while self._open and now_s - self._open[0].received_s > self.window_s + margin_s:
             out.append(self._emit(self._open.popleft(), now_s))
@@ -396,7 +403,7 @@ class LiveSource:
         while not self._stop.is_set():
             timeout = wait_max
             if dec._open:
-                timeout = min(wait_max, max(0.0, dec._open[0].received_s + window + 0.002 - clock()))
+                timeout = min(wait_max, max(0.0, dec._open[0].received_s + window + QUIET_BUS_MARGIN_S - clock()))
             msg = recv(timeout=timeout)
             if msg is not None:
                 yield from dec.push(msg, clock())
