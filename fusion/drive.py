@@ -1,0 +1,126 @@
+"""The files of one drive (INTERFACE.md, "Drive on disk"), checked before any work starts.
+
+Every problem is one line naming the file: a missing file, a ``frames.csv`` that is not
+``frame,t_s`` with increasing finite times, a drive whose video and CAN log do not overlap.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .config import DriveConfig, VideoTiming
+from .errors import InputError
+
+__all__ = ["DriveFiles", "SAMPLE_DRIVE", "read_frame_times", "read_truth", "find_drive_files"]
+
+#: The bundled sample drive (a simulated 12 s banked right-hand curve, 640x360 at 30 fps),
+#: rendered from ``configs/scenarios/sample_banked_curve.toml``.
+SAMPLE_DRIVE = Path(__file__).resolve().parent / "data" / "sample_drive"
+
+
+@dataclass(frozen=True)
+class DriveFiles:
+    """Input files of a run; the truth files exist only for simulated drives."""
+
+    video: Path
+    can_log: Path
+    config: Path
+    frames: Path | None = None
+    dbc: Path | None = None
+    truth: Path | None = None
+    truth_frames: Path | None = None
+    imu_truth: Path | None = None
+
+    def check(self) -> "DriveFiles":
+        for name in ("video", "can_log", "config", "frames", "dbc"):
+            p = getattr(self, name)
+            if p is not None and not Path(p).exists():
+                raise InputError(f"{p}: no such file ({name.replace('_', ' ')})")
+        if Path(self.can_log).is_dir():
+            raise InputError(f"{self.can_log}: is a directory, expected a CAN log")
+        return self
+
+
+def find_drive_files(root: str | Path) -> DriveFiles:
+    """The files of a drive folder written by ``vifusion simulate`` (or laid out like one)."""
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"{root}: no such drive folder")
+    videos = [p for p in (root / "video.mp4", root / "video.avi", root / "video") if p.exists()]
+    logs = sorted(p for p in root.glob("can.*") if p.suffix in (".asc", ".blf", ".log", ".trc", ".csv", ".mf4"))
+    if not videos:
+        raise InputError(f"{root}: no video.mp4, video.avi or video/ folder")
+    if not logs:
+        raise InputError(f"{root}: no can.<asc|blf|log|trc|csv|mf4> log")
+
+    def opt(name):
+        p = root / name
+        return p if p.exists() else None
+
+    return DriveFiles(video=videos[0], can_log=logs[0], config=root / "config.toml", frames=opt("frames.csv"),
+                      truth=opt("truth.csv"), truth_frames=opt("truth_frames.csv"),
+                      imu_truth=opt("imu_truth.csv")).check()
+
+
+def read_frame_times(frames_csv: Path | None, timing: VideoTiming, n_frames: int | None = None) -> pd.DataFrame:
+    """``frame,t_s`` of every frame, on the CAN log's clock.
+
+    From ``frames.csv`` when given (checked: the two columns, integer frames, finite strictly
+    increasing times), else ``t = start_s + frame / fps`` for ``n_frames`` frames.
+    """
+    if frames_csv is None:
+        if n_frames is None:
+            raise InputError("no frames.csv and no frame count to derive frame times from")
+        f = np.arange(n_frames)
+        return pd.DataFrame({"frame": f, "t_s": timing.start_s + f / timing.fps})
+    try:
+        df = pd.read_csv(frames_csv)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
+        raise InputError(f"{frames_csv}: not a CSV file ({' '.join(str(e).split())})") from None
+    missing = [c for c in ("frame", "t_s") if c not in df.columns]
+    if missing:
+        raise InputError(f"{frames_csv}: needs columns frame,t_s (missing {', '.join(missing)})")
+    if df.empty:
+        raise InputError(f"{frames_csv}: has no rows")
+    frame = pd.to_numeric(df["frame"], errors="coerce").to_numpy()
+    t = pd.to_numeric(df["t_s"], errors="coerce").to_numpy(dtype=float)
+    bad = ~np.isfinite(t) | ~np.isfinite(frame)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{frames_csv}: row {i + 2} has a non-numeric frame or t_s")
+    if np.any(frame != np.round(frame)) or np.any(frame < 0):
+        raise InputError(f"{frames_csv}: frame numbers must be integers >= 0")
+    if np.any(np.diff(t) <= 0):
+        i = int(np.flatnonzero(np.diff(t) <= 0)[0])
+        raise InputError(f"{frames_csv}: t_s does not increase at row {i + 3} ({t[i]!r} then {t[i + 1]!r})")
+    return pd.DataFrame({"frame": frame.astype(int), "t_s": t})
+
+
+def read_truth(path: Path | None) -> pd.DataFrame | None:
+    if path is None:
+        return None
+    try:
+        df = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not a CSV file ({' '.join(str(e).split())})") from None
+    if "t_s" not in df.columns:
+        raise InputError(f"{path}: no t_s column")
+    return df
+
+
+def check_overlap(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: str, log_name: str) -> tuple[float, float]:
+    """The common time span of the frames and the IMU samples; an error if there is none."""
+    if len(frame_t) == 0 or len(imu_t) == 0:
+        raise InputError(f"{frames_name if len(frame_t) == 0 else log_name}: no samples")
+    lo, hi = max(frame_t[0], imu_t[0]), min(frame_t[-1], imu_t[-1])
+    if hi <= lo:
+        raise InputError(
+            f"no overlap between the video's frame times ({frame_t[0]:.3f} .. {frame_t[-1]:.3f} s, {frames_name}) "
+            f"and the CAN log's IMU samples ({imu_t[0]:.3f} .. {imu_t[-1]:.3f} s, {log_name}): "
+            "are both on the CAN log's clock?")
+    return float(lo), float(hi)

@@ -1,0 +1,79 @@
+"""The ``[fusion]`` table of a config file: the filter's noise model (your IMU's datasheet
+values and the allowances for what the model leaves out) and how a run is done.
+
+Every key is optional; units are in the names. Example::
+
+    [fusion]
+    gyro_noise_deg_s = 0.05          # 1-sigma of one gyro sample
+    accel_noise_m_s2 = [0.15, 0.15, 0.6]
+    accel_bias_sigma_m_s2 = 0.03     # residual after calibration; bounds the bank accuracy
+    camera_time_offset_s = 0.0       # added to frames.csv times
+    estimate_time_offset = false     # estimate it from the data and use the estimate
+    smooth = false                   # forward filter + RTS smoother (offline)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+from .config import Table
+from .ekf import NoiseModel
+from .engine import FusionOptions
+
+__all__ = ["RunSettings", "fusion_options_from_table"]
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    camera_time_offset_s: float = 0.0
+    estimate_time_offset: bool = False
+    smooth: bool = False
+
+
+# key -> (NoiseModel field, converter from the file's unit)
+_NOISE_KEYS = {
+    "gyro_noise_deg_s": ("gyro_noise_rad_s", math.radians),
+    "gyro_bias_walk_deg_s_sqrt_s": ("gyro_bias_walk_rad_s_sqrt_s", math.radians),
+    "gyro_bias_sigma_deg_s": ("init_gyro_bias_rad_s", math.radians),
+    "accel_bias_sigma_m_s2": ("init_accel_bias_m_s2", float),
+    "accel_bias_walk_m_s2_sqrt_s": ("accel_bias_walk_m_s2_sqrt_s", float),
+    "speed_noise_m_s": ("speed_meas_m_s", float),
+    "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians),
+    "bank_rate_deg_s": ("bank_rate_rad_s", math.radians),
+    "bank_rate_tau_s": ("bank_rate_tau_s", float),
+    "grade_walk_deg_sqrt_s": ("grade_walk_rad_sqrt_s", math.radians),
+    "longitudinal_jerk_m_s3": ("accel_x_walk_m_s2_sqrt_s", float),
+    "vision_sigma_scale": ("vision_sigma_scale", float),
+    "vision_sigma_floor_deg": ("vision_sigma_floor_rad", math.radians),
+    "gate_probability": ("gate_probability", float),
+}
+
+
+def fusion_options_from_table(table: dict | None, source: str = "config") -> tuple[FusionOptions, RunSettings]:
+    """Parse ``[fusion]``; errors name the file and key (:class:`fusion.errors.ConfigError`)."""
+    t = Table(table or {}, "fusion", source)
+    noise = NoiseModel()
+    changes = {}
+    for key, (name, conv) in _NOISE_KEYS.items():
+        if t.has(key):
+            lo = 0.0 if key != "gate_probability" else 0.5
+            hi = None if key != "gate_probability" else 0.999999
+            changes[name] = conv(t.get(key, "float", min=lo, max=hi))
+    if t.has("accel_noise_m_s2"):
+        changes["accel_meas_m_s2"] = t.get("accel_noise_m_s2", "floats", length=3, min=1e-6)
+    noise = replace(noise, **changes)
+    opts = FusionOptions(
+        noise=noise,
+        gravity_every=t.get("gravity_every", "int", 1, min=1, max=100),
+        history_s=t.get("history_s", "float", 1.0, min=0.0, max=60.0),
+        curvature_hold_s=t.get("curvature_hold_s", "float", 0.25, min=0.0, max=10.0),
+        reacquire_after_rejections=t.get("reacquire_after_rejections", "int", 10, min=1),
+    )
+    run = RunSettings(
+        camera_time_offset_s=t.get("camera_time_offset_s", "float", 0.0, min=-10.0, max=10.0),
+        estimate_time_offset=t.get("estimate_time_offset", "bool", False),
+        smooth=t.get("smooth", "bool", False),
+    )
+    t.done()
+    return opts, run

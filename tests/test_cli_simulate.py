@@ -1,0 +1,126 @@
+"""``vifusion simulate`` end to end: a complete drive in the contract's format, whose parts agree
+with each other and with the truth; bad scenario files give one line naming the key."""
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from fusion.config import load_config
+from imu import read_log
+
+TEST_SCENARIOS = Path(__file__).resolve().parents[1] / "configs" / "scenarios" / "test"
+
+
+def vifusion(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "fusion", *map(str, args)], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def drives(tmp_path_factory):
+    out = {}
+    for name in ("tiny_banked_curve", "tiny_dlc_car_distorted"):
+        d = tmp_path_factory.mktemp(name) / "drive"
+        r = vifusion("simulate", TEST_SCENARIOS / f"{name}.toml", "--out", d, "--quiet")
+        assert r.returncode == 0, r.stderr
+        out[name] = d
+    return out
+
+
+def test_drive_files_are_complete_and_consistent(drives):
+    d = drives["tiny_banked_curve"]
+    for f in ("video.mp4", "frames.csv", "can.asc", "vifusion_imu.dbc", "config.toml", "truth.csv",
+              "truth_frames.csv", "imu_truth.csv", "scenario.toml"):
+        assert (d / f).is_file(), f
+    assert not d.with_name("drive.partial").exists()
+    frames = pd.read_csv(d / "frames.csv")
+    assert list(frames.columns) == ["frame", "t_s"]
+    assert len(frames) == 30  # 2 s at 15 fps
+    cap = cv2.VideoCapture(str(d / "video.mp4"))
+    n = 0
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        assert img.shape == (180, 320, 3)
+        n += 1
+    assert n == len(frames)
+    truth = pd.read_csv(d / "truth.csv")
+    for c in ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_world_deg", "pitch_world_deg"):
+        assert c in truth.columns
+    assert np.allclose(np.diff(truth["t_s"]), 0.01)  # 100 Hz
+    # the curve is banked 5 deg (positive: right-hand curve, left edge up) and reached
+    assert truth["bank_deg"].iloc[-1] == pytest.approx(5.0, abs=1e-6)
+
+
+def test_can_log_carries_the_true_imu_on_the_same_clock(drives):
+    """Decoded with the drive's own config and DBC, the CAN log gives the true rates plus the
+    configured bias and noise, at the times truth gives them: the clocks agree."""
+    d = drives["tiny_banked_curve"]
+    cfg = load_config(d / "config.toml")
+    imu, _ = read_log(d / "can.asc", cfg.can, cfg.imu)
+    true = pd.read_csv(d / "imu_truth.csv")
+    assert len(imu) == len(true)
+    np.testing.assert_allclose(imu["t_s"], true["t_s"], atol=1e-6)
+    for a in "xyz":
+        err = imu[f"gyro_{a}_rad_s"] - true[f"gyro_{a}_rad_s"] - true[f"gyro_bias_{a}_rad_s"]
+        # white noise 0.05 deg/s per sample plus half a DBC step (0.0025 deg/s)
+        assert math.degrees(err.std()) == pytest.approx(0.05, rel=0.4)
+        assert abs(math.degrees(err.mean())) < 0.05
+    frames = pd.read_csv(d / "frames.csv")
+    tf = pd.read_csv(d / "truth_frames.csv")
+    np.testing.assert_allclose(frames["t_s"], tf["t_s"], atol=1e-9)
+    assert imu["t_s"].iloc[0] <= frames["t_s"].iloc[0] and frames["t_s"].iloc[-1] <= imu["t_s"].iloc[-1] + 0.01
+
+
+def test_car_drive_with_distortion_png_frames_and_no_pitch_rate(drives):
+    d = drives["tiny_dlc_car_distorted"]
+    pngs = sorted((d / "video").glob("*.png"))
+    assert len(pngs) == 30
+    cfg = load_config(d / "config.toml")
+    assert cfg.camera.has_distortion and cfg.road.marker_widths_m == (0.25, 0.15, 0.15)
+    assert "gyro_y" not in cfg.can.signals  # the IMU has no pitch-rate channel
+    imu, _ = read_log(d / "can.blf", cfg.can, cfg.imu)
+    assert "gyro_y_rad_s" in imu.attrs["unavailable"]
+    assert np.all(np.isnan(imu["gyro_y_rad_s"]))
+    truth = pd.read_csv(d / "truth.csv")
+    # car: the body follows the road plus 0.5 deg of body roll per m/s^2 of lateral acceleration
+    # (2.6 m/s^2 peak in this lane change): well under 2 deg, and outward (right in a left move)
+    assert 0.5 < truth["roll_deg"].abs().max() < 2.0
+    # 3 % grade uphill: the road pitches nose-up (negative, INTERFACE: positive is nose down)
+    assert truth["road_pitch_deg"].iloc[-1] == pytest.approx(-math.degrees(math.atan(0.03)), abs=1e-3)
+
+
+@pytest.mark.parametrize("edit, key", [
+    ("heigth_m = 1.1", "heigth_m"),
+    ('width = "wide"', "width"),
+    ("duration_s = -3", "duration_s"),
+    ("[[motion.manoeuvre]]\nkind = \"wheelie\"\nstart_m = 1\nlength_m = 10", "kind"),
+])
+def test_bad_scenario_is_one_line_naming_the_key(tmp_path, edit, key):
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    table = {"heigth_m = 1.1": "[mount]", 'width = "wide"': "[camera]", "duration_s = -3": "[scenario]"}.get(edit)
+    if table:
+        bad = src.replace(table + "\n", table + "\n" + edit + "\n", 1)
+        if key in ("width", "duration_s"):
+            bad = bad.replace(f"{key} = 320\n", "", 1).replace(f"{key} = 2.0\n", "", 1)
+    else:
+        bad = src + "\n" + edit + "\n"
+    p = tmp_path / "bad.toml"
+    p.write_text(bad)
+    r = vifusion("simulate", p, "--out", tmp_path / "out")
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and key in lines[0], r.stderr
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_scenario_file(tmp_path):
+    r = vifusion("simulate", tmp_path / "nope.toml", "--out", tmp_path / "out")
+    assert r.returncode == 2 and r.stderr.startswith("error: ") and "nope.toml" in r.stderr
