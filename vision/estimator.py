@@ -1,0 +1,716 @@
+"""The vehicle's attitude relative to the road from one camera frame (Alrazouk et al. 2024).
+
+Pipeline (each step in its own module):
+
+1. IPM (:mod:`vision.ipm`): bird's-eye view at an assumed pose (the seed's, or the fixed mount);
+2. lane markers (:mod:`vision.lanes`): both edges of the left, centre and right lines;
+3. roll (:mod:`vision.roll`): eq. (8) with two markers, eq. (10) with three lines;
+4. pitch and yaw (:mod:`vision.vanishing`): the vanishing point of the lane lines, eqs. (17), (20);
+5. the camera's attitude ``R_o_from_cs = Rx(phi1) Ry(theta1) Rz(psi1)``, the vehicle's
+   ``R_o_from_v = R_o_from_cs R_v_from_cs^T`` (eq. (22)) and its ZYX angles (section VII).
+
+What the round trip against the simulator decided (tests/test_vision_estimator.py):
+
+* The BEV built with pitch and yaw equal to the vanishing point's differs from the truth by
+  ``Q = R_assumed R_o_from_cs^T = Rx(phi0 - phi1)``, a rotation about the lane direction, so the
+  widths give the XYZ roll ``phi1`` directly. The BEV of the fixed mount (roll 0, pitch = tilt)
+  differs by ``Ry(mu) (Rx(phi1) Ry(theta1) Rz(psi1))^T``, which for ``theta1 = mu, psi1 = 0`` is
+  again ``Rx(-phi1)``. The paper reads it as the ZYX roll and converts it with eq. (21); that
+  conversion is a slip (0.64 deg at 20 deg lean with mu = 15 deg), kept as ``eq21=True`` in the
+  paper preset to measure it.
+* Eq. (8)'s root is the BEV's residual roll ``phi_bev - phi1`` (:mod:`vision.roll`).
+* The camera rolls with the vehicle about the contact point, so its height above the road is
+  ``(R_o_from_v p_cam)_z`` (``h cos(roll) cos(pitch)`` for a camera above the contact point) and
+  it moves sideways by ``-h sin(roll)``; eqs. (8), (10) use angles only, but the lateral offset,
+  the curvature and the ground coordinates of the refinement use this height.
+
+Beyond the paper (each a switch in :class:`vision.options.EstimatorOptions`): BEV at the previous
+frame's pose; sub-pixel edges; several cross-sections; iterated refinement that re-projects the
+detected edges with the new roll, pitch and yaw (the small-angle approximations of a single pass
+become exact as the residual rotation goes to zero); re-warping when the pose moved far; the
+vanishing point of the lane tangents at the vehicle (curved roads); known unequal widths.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from .camera import Camera, Mount, RoadMarkings
+from .errors import VisionError
+from .frames import R_CS_FROM_CP, R_from_rpy, Ry, euler_from_matrix, matrix_from_euler, roll_xyz_from_zyx, rpy_from_R
+from .ipm import Bev, BevGrid, default_grid, ground_from_rays, undistortion_lookup
+from .lanemodel import LaneModel, fit_lane_model, lane_direction
+from .lanes import LaneOptions, Marker, detect_markers
+from .options import EstimatorOptions
+from .roll import (coefficients_eq8, coefficients_eq10, roll_bound_eq14, roll_sigma, solve_numeric, solve_pade)
+from .vanishing import (angle_sigmas, intersect_lines, r3_from_vp, r3_from_yaw_pitch, vp_bounds, vp_from_r3,
+                        yaw_pitch_from_r3)
+
+__all__ = ["VisionEstimate", "Estimator", "estimate", "camera_xyz_from_vehicle", "vehicle_from_camera_xyz"]
+
+
+# ---------------------------------------------------------------------------------------------
+# Result
+
+
+@dataclass(frozen=True)
+class VisionEstimate:
+    """One frame's estimate.
+
+    Angles of the vehicle relative to the road, ZYX, INTERFACE conventions (positive roll leans
+    right, positive pitch is nose down, positive yaw is nose left), rad; NaN when not ``valid``.
+
+    Attributes
+    ----------
+    roll_rad, pitch_rad, yaw_rad : float
+    roll_sigma_rad, pitch_sigma_rad, yaw_sigma_rad : float
+        1-sigma, first-order propagation of the edge and vanishing-point errors (from the fit
+        residuals) through eqs. (8)/(10) and (17)/(20); see :mod:`vision.roll`, :mod:`vision.vanishing`.
+    valid : bool
+        False when the frame gave no trustworthy estimate; ``reason`` says why.
+    curvature_1_m : float
+        Curvature of the lane at the vehicle, 1/m, positive turning left (mean of the lines used).
+    lateral_offset_m : float
+        Vehicle origin's offset from the midpoint between the outermost lines used, m, positive
+        to the left (the road's centre line in the simulator's two- and three-line setups).
+    line_spacing_m : float
+        Distance between neighbouring lines used, m (mean).
+    camera_xyz_rad : tuple
+        ``(phi1, theta1, psi1)``: the camera's XYZ roll, pitch, yaw relative to the road.
+    vp_px : tuple
+        Vanishing point of the lane direction, undistorted pixels.
+    n_lines : int
+        Lines used (2 or 3).
+    roll_equation : str
+        "eq8", "eq10" or "damon2018".
+    edge_rms_px : float
+        RMS of the edge fits' residuals, BEV pixels.
+    n_edge_points : int
+    iterations, warps : int
+        Refinement passes and BEV warps used.
+    roll_bound_eq14_rad : float
+        Eq. (14) as printed (for comparison; far smaller than the real error, see :mod:`vision.roll`).
+    method : str
+    reason : str
+        Empty when valid.
+    """
+
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    roll_sigma_rad: float
+    pitch_sigma_rad: float
+    yaw_sigma_rad: float
+    valid: bool
+    curvature_1_m: float = math.nan
+    lateral_offset_m: float = math.nan
+    line_spacing_m: float = math.nan
+    camera_xyz_rad: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    vp_px: tuple[float, float] = (math.nan, math.nan)
+    n_lines: int = 0
+    roll_equation: str = ""
+    edge_rms_px: float = math.nan
+    n_edge_points: int = 0
+    iterations: int = 0
+    warps: int = 0
+    roll_bound_eq14_rad: float = math.nan
+    method: str = "alrazouk"
+    reason: str = ""
+    #: Geometry for drawing (:mod:`vision.debug`); not part of equality or repr.
+    debug: object = field(default=None, compare=False, repr=False)
+
+    @classmethod
+    def invalid(cls, reason: str, method: str = "alrazouk", debug: object = None, **kw) -> "VisionEstimate":
+        nan = math.nan
+        return cls(nan, nan, nan, nan, nan, nan, False, method=method, reason=reason, debug=debug, **kw)
+
+    @property
+    def rpy_rad(self) -> tuple[float, float, float]:
+        return self.roll_rad, self.pitch_rad, self.yaw_rad
+
+
+@dataclass
+class DebugInfo:
+    """What :mod:`vision.debug` draws."""
+
+    bev_image: np.ndarray | None = None
+    bev: Bev | None = None
+    markers: list = field(default_factory=list)
+    used: list = field(default_factory=list)
+    cross_rows_v: np.ndarray | None = None
+    vp_px: tuple[float, float] | None = None
+    R_o_from_cp: np.ndarray | None = None
+    height_m: float = math.nan
+    image_lines: list = field(default_factory=list)
+
+
+# ---------------------------------------------------------------------------------------------
+# Attitude conversions (eq. (22))
+
+
+def camera_xyz_from_vehicle(roll_rad: float, pitch_rad: float, yaw_rad: float, tilt_rad: float):
+    """``(phi1, theta1, psi1)`` of ``R_o_from_cs = R_o_from_v Ry(mu)`` in XYZ form."""
+    R = R_from_rpy(roll_rad, pitch_rad, yaw_rad) @ Ry(tilt_rad)
+    a, b, c = euler_from_matrix("xyz", R)
+    return float(a), float(b), float(c)
+
+
+def vehicle_from_camera_xyz(phi1: float, theta1: float, psi1: float, tilt_rad: float):
+    """Eq. (22): ``R_o_from_v = Rx(phi1) Ry(theta1) Rz(psi1) Ry(mu)^T``; returns ZYX
+    ``(roll, pitch, yaw)`` and the matrix."""
+    R = matrix_from_euler("xyz", phi1, theta1, psi1) @ Ry(tilt_rad).T
+    roll, pitch, yaw = rpy_from_R(R)
+    return (float(roll), float(pitch), float(yaw)), R
+
+
+def _R_o_from_cp(phi1: float, theta1: float, psi1: float) -> np.ndarray:
+    return matrix_from_euler("xyz", phi1, theta1, psi1) @ R_CS_FROM_CP
+
+
+def _camera_offset(R_o_from_v: np.ndarray, mount: Mount) -> np.ndarray:
+    """Optical centre relative to the contact point, road frame, m."""
+    return R_o_from_v @ mount.position_v
+
+
+# ---------------------------------------------------------------------------------------------
+# Small helpers
+
+
+def _gray(image) -> tuple[np.ndarray | None, str]:
+    """uint8 grey image, or ``(None, reason)`` for input that is not a usable picture."""
+    if not isinstance(image, np.ndarray):
+        return None, f"not an image array ({type(image).__name__})"
+    if image.size == 0:
+        return None, "empty image"
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[..., 0]
+    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] in (3, 4))):
+        return None, f"image must be HxW or HxWx3/4, got shape {image.shape}"
+    if image.dtype == np.uint8:
+        g = image
+    elif image.dtype == np.uint16:
+        g = (image / 257.0).astype(np.float32)
+    elif np.issubdtype(image.dtype, np.floating) or np.issubdtype(image.dtype, np.integer):
+        f = image.astype(np.float32)
+        if not np.all(np.isfinite(f)):
+            return None, "image has non-finite pixels"
+        g = f * 255.0 if float(f.max(initial=0.0)) <= 1.0 else f
+    else:
+        return None, f"unsupported image dtype {image.dtype}"
+    if g.ndim == 3:
+        code = cv2.COLOR_BGR2GRAY if g.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        g = cv2.cvtColor(g, code)
+    if g.dtype != np.uint8:
+        g = np.clip(g, 0, 255).astype(np.uint8)
+    return g, ""
+
+
+@lru_cache(maxsize=8)
+def _undistort_lut(camera: Camera):
+    return undistortion_lookup(camera) if camera.has_distortion else None
+
+
+@dataclass
+class _Edge:
+    """One marker edge: rays through its sub-pixel points, and bookkeeping."""
+
+    rays: np.ndarray          # (n, 3) in cp
+    line: int                 # index into the used lines, left to right
+    side: int                 # 0 left edge (larger Y), 1 right edge
+    n_eff: float              # independent samples (image rows spanned)
+
+
+# ---------------------------------------------------------------------------------------------
+# Estimator
+
+
+class Estimator:
+    """Estimates frame after frame; keeps the previous estimate as the next frame's seed.
+
+    Parameters
+    ----------
+    camera : Camera
+    mount : Mount
+    road : RoadMarkings
+    options : EstimatorOptions
+    """
+
+    def __init__(self, camera: Camera, mount: Mount, road: RoadMarkings = RoadMarkings(),
+                 options: EstimatorOptions = EstimatorOptions()) -> None:
+        if not isinstance(camera, Camera) or not isinstance(mount, Mount):
+            raise VisionError("Estimator needs a vision.Camera and a vision.Mount")
+        self.camera, self.mount, self.road, self.options = camera, mount, road, options
+        o = options
+        mw = min(road.marker_widths_m)
+        g = default_grid(camera, mw, half_width_m=o.half_width_m, dy_m=o.dy_m, dx_m=o.dx_m,
+                         height_m=mount.height_m, tilt_rad=mount.tilt_rad)
+        self.grid = BevGrid(o.x_min_m if o.x_min_m is not None else g.x_min_m,
+                            o.x_max_m if o.x_max_m is not None else g.x_max_m,
+                            g.y_min_m, g.y_max_m, g.dx_m, g.dy_m)
+        self.lane_options = LaneOptions(edges=o.edges, fit_degree=o.fit_degree)
+        self.lut = _undistort_lut(camera)
+        self.last: VisionEstimate | None = None
+
+    # ---- public ----
+
+    def reset(self) -> None:
+        self.last = None
+
+    def estimate(self, image, seed=None, *, keep_debug: bool = False) -> VisionEstimate:
+        """Estimate one frame. ``seed``: a previous :class:`VisionEstimate` or ``(roll, pitch,
+        yaw)`` in rad; ``None`` uses the last valid estimate of this object (or no seed).
+        Never raises for bad pictures: they give ``valid=False`` with a ``reason``."""
+        if seed is None and self.last is not None and self.last.valid:
+            seed = self.last
+        seed_rpy = _seed_rpy(seed)
+        gray, why = _gray(image)
+        if gray is None:
+            return VisionEstimate.invalid(why, self.options.method)
+        if gray.shape != (self.camera.height, self.camera.width):
+            return VisionEstimate.invalid(
+                f"image is {gray.shape[1]}x{gray.shape[0]}, the camera is {self.camera.width}x{self.camera.height}",
+                self.options.method)
+        try:
+            if self.options.method == "damon2018":
+                from .baseline import damon_estimate
+
+                est = damon_estimate(self, gray, seed_rpy, keep_debug)
+            else:
+                est = self._alrazouk(gray, seed_rpy, keep_debug)
+        except (VisionError, np.linalg.LinAlgError, FloatingPointError, ValueError) as e:
+            est = VisionEstimate.invalid(f"{type(e).__name__}: {e}", self.options.method)
+        est = _sanitise(est)
+        if est.valid:
+            self.last = est
+        return est
+
+    # ---- BEV and markers ----
+
+    def bev_at(self, gray: np.ndarray, R_o_from_cp: np.ndarray, height_m: float, grid: BevGrid | None = None):
+        bev = Bev(grid or self.grid, self.camera, R_o_from_cp, height_m)
+        img = bev.warp(gray, self.lut).astype(np.float32)
+        lo, hi = bev.valid_columns()
+        return bev, img, lo, hi
+
+    def markers_at(self, gray, R_o_from_cp, height_m, lane_options: LaneOptions | None = None,
+                   grid: BevGrid | None = None):
+        bev, img, lo, hi = self.bev_at(gray, R_o_from_cp, height_m, grid)
+        mk = detect_markers(img, lo, hi, bev.grid.dx_m, bev.grid.dy_m, min(self.road.marker_widths_m),
+                            lane_options or self.lane_options)
+        return bev, img, mk
+
+    def select_lines(self, bev: Bev, markers: list[Marker], want_three: bool) -> tuple[list[Marker], list[int]]:
+        """The lines for the roll equation, left to right: the nearest on each side of the
+        vehicle, plus (for three) the next line whose spacing is most equal."""
+        if len(markers) < 2:
+            return [], []
+        u0 = bev.u0
+        uc = np.array([float(np.polyval(0.5 * (m.fit_left + m.fit_right), m.v_near)) for m in markers])
+        left = [i for i in range(len(markers)) if uc[i] < u0]
+        right = [i for i in range(len(markers)) if uc[i] >= u0]
+        if not left or not right:
+            # Both lines on one side (large lateral offset): take the two nearest the nadir.
+            order = np.argsort(np.abs(uc - u0))[:2]
+            pair = sorted(int(i) for i in order)
+        else:
+            pair = [left[-1], right[0]]
+        if not want_three:
+            return [markers[i] for i in pair], pair
+        cands = []
+        spacing = abs(uc[pair[1]] - uc[pair[0]])
+        if pair[0] - 1 >= 0:
+            cands.append([pair[0] - 1] + pair)
+        if pair[1] + 1 < len(markers):
+            cands.append(pair + [pair[1] + 1])
+        if not cands:
+            return [markers[i] for i in pair], pair
+
+        def unequal(tr):
+            s1, s2 = abs(uc[tr[1]] - uc[tr[0]]), abs(uc[tr[2]] - uc[tr[1]])
+            return abs(s1 - s2) / max(s1, s2, 1e-9)
+
+        best = min(cands, key=unequal)
+        if unequal(best) > 0.35 or spacing <= 0:
+            return [markers[i] for i in pair], pair
+        return [markers[i] for i in best], best
+
+    # ---- the method ----
+
+    def _initial_pose(self, seed_rpy):
+        """Camera XYZ angles and height of the first BEV."""
+        if self.options.ipm_pose == "seed" and seed_rpy is not None:
+            roll, pitch, yaw = seed_rpy
+        else:
+            roll, pitch, yaw = 0.0, 0.0, 0.0
+        return camera_xyz_from_vehicle(roll, pitch, yaw, self.mount.tilt_rad)
+
+    def height_of(self, phi1, theta1, psi1) -> tuple[float, np.ndarray]:
+        _, R_o_from_v = vehicle_from_camera_xyz(phi1, theta1, psi1, self.mount.tilt_rad)
+        off = _camera_offset(R_o_from_v, self.mount)
+        return float(off[2]), R_o_from_v
+
+    def _alrazouk(self, gray, seed_rpy, keep_debug) -> VisionEstimate:
+        result = self._run(gray, self._initial_pose(seed_rpy), keep_debug)
+        if not result.valid and self.options.ipm_pose == "seed":
+            # The seed (or the mount's pose) put lines outside the BEV: search for them.
+            pose = self._coarse_pose(gray)
+            if pose is not None:
+                again = self._run(gray, pose, keep_debug)
+                if again.valid:
+                    return replace(again, warps=again.warps + result.warps)
+        return result
+
+    def _run(self, gray, pose, keep_debug, grid: BevGrid | None = None) -> VisionEstimate:
+        """BEV at ``pose``, markers, solve; warp again at the new pose when it moved far."""
+        o = self.options
+        want_three = self.road.center_line and o.roll_equation in ("auto", "eq10")
+        warps = 0
+        result = VisionEstimate.invalid("no lane markers found", o.method)
+        while warps < o.max_warps:
+            H, _ = self.height_of(*pose)
+            bev, img, markers = self.markers_at(gray, _R_o_from_cp(*pose), H, grid=grid)
+            warps += 1
+            lines, idx = self.select_lines(bev, markers, want_three)
+            dbg = DebugInfo(bev_image=img, bev=bev, markers=markers, used=idx) if keep_debug else None
+            if len(lines) < 2:
+                n = len(markers)
+                return VisionEstimate.invalid(f"{n} lane line{'' if n == 1 else 's'} found, need 2", o.method,
+                                              debug=dbg, warps=warps)
+            result = self._solve(bev, lines, pose, H, dbg, warps)
+            if not result.valid:
+                return result
+            new = result.camera_xyz_rad
+            if math.degrees(max(abs(a - b) for a, b in zip(new, pose))) <= o.rewarp_deg:
+                break
+            pose = new
+        return result
+
+    def _coarse_pose(self, gray):
+        """Camera pose from a wide, coarse BEV tried at leans of 0, -+15, -+30, -+45 deg: for frames
+        without a usable seed. None if no lean shows two lines."""
+        g = self.grid
+        coarse = BevGrid(g.x_min_m, min(g.x_max_m, 25.0), -20.0, 20.0, 0.15, 0.05)
+        for lean in (0.0, -15.0, 15.0, -30.0, 30.0, -45.0, 45.0):
+            pose = camera_xyz_from_vehicle(math.radians(lean), 0.0, 0.0, self.mount.tilt_rad)
+            H, _ = self.height_of(*pose)
+            bev, _, markers = self.markers_at(gray, _R_o_from_cp(*pose), H, grid=coarse)
+            lines, _ = self.select_lines(bev, markers, False)
+            if len(lines) < 2:
+                continue
+            res = self._solve(bev, lines, pose, H, None, 1)
+            if res.valid:
+                return res.camera_xyz_rad
+        return None
+
+    def _solve(self, bev: Bev, lines: list[Marker], pose0, H0: float, dbg, warps: int) -> VisionEstimate:
+        o, cam = self.options, self.camera
+        n_lines = len(lines)
+        use_eq10 = n_lines == 3 and o.roll_equation in ("auto", "eq10")
+        if o.roll_equation == "eq10" and n_lines != 3:
+            return VisionEstimate.invalid(f"eq. (10) needs three lines, found {n_lines}", o.method, debug=dbg)
+        # Width ratio of eq. (8): the outermost two markers' known widths (left, centre, right).
+        widths = self.road.marker_widths_m
+        ratio = (widths[0] / widths[2]) if o.known_widths else 1.0
+
+        # Edge points -> rays in cp.
+        edges: list[_Edge] = []
+        for j, m in enumerate(lines):
+            k = m.inliers
+            for side, u in ((0, m.u_left[k]), (1, m.u_right[k])):
+                edges.append(_Edge(bev.rays_of_bev(u, m.v[k]), j, side, 0.0))
+        n_points = int(sum(e.rays.shape[0] for e in edges))
+        rms_px = float(np.sqrt(np.mean([m.rms_left**2 + m.rms_right**2 for m in lines]) / 2.0))
+        shape_deg = o.fit_degree
+
+        phi, theta, psi = pose0
+        iterations = 0
+        if o.refine_iterations == 0:
+            # ---- the paper's single pass: roll in this BEV, vanishing point of image lines ----
+            vs = self._bev_cross_rows(lines)
+            if vs is None:
+                return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
+            alphas, coef = self._bev_alphas(bev, lines, vs, use_eq10, ratio, bev.f_vx)
+            resid = self._solve_roll(alphas, coef)
+            phi_bev = phi - resid
+            vp, lines_img = self._vp_image_lines(bev, lines)
+            psi, theta = yaw_pitch_from_r3(r3_from_vp(cam.K, vp))
+            phi = roll_xyz_from_zyx(phi_bev, theta, psi) if o.eq21 else phi_bev
+            if dbg is not None:
+                dbg.cross_rows_v = vs
+                dbg.image_lines = lines_img
+            H, _ = self.height_of(phi, theta, psi)
+            model = self._model(edges, _R_o_from_cp(phi, theta, psi), H, shape_deg, bev.grid)
+            x_rows = self._cross_x(model)
+            if x_rows is None:
+                return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
+        else:
+            for it in range(o.refine_iterations):
+                iterations = it + 1
+                H, _ = self.height_of(phi, theta, psi)
+                R = _R_o_from_cp(phi, theta, psi)
+                model = self._model(edges, R, H, shape_deg, bev.grid)
+                dmodel = model if o.vp == "tangent" else self._model(edges, R, H, 1, bev.grid)
+                d = lane_direction(dmodel, H)
+                if d is None:
+                    return VisionEstimate.invalid("no lane direction (vanishing point)", o.method, debug=dbg)
+                psi_new, theta_new = yaw_pitch_from_r3(R.T @ d)
+                x_rows = self._cross_x(model)
+                if x_rows is None:
+                    return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
+                alphas, coef = self._model_alphas(model, x_rows, use_eq10, ratio, H)
+                delta = self._solve_roll(alphas, coef)
+                step = max(abs(delta), abs(psi_new - psi), abs(theta_new - theta))
+                phi, theta, psi = phi - delta, theta_new, psi_new
+                if step < 1e-7:
+                    break
+            H, _ = self.height_of(phi, theta, psi)
+            model = self._model(edges, _R_o_from_cp(phi, theta, psi), H, shape_deg, bev.grid)
+            x_rows = self._cross_x(model)
+            if x_rows is None:
+                return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
+            vp = vp_from_r3(cam.K, r3_from_yaw_pitch(psi, theta))
+            if dbg is not None:
+                dbg.cross_rows_v = bev.grid.row_of_x(x_rows)
+
+        # ---- outputs ----
+        (roll, pitch, yaw), R_o_from_v = vehicle_from_camera_xyz(phi, theta, psi, self.mount.tilt_rad)
+        cam_off = _camera_offset(R_o_from_v, self.mount)
+        H = float(cam_off[2])
+        # Uncertainty: roll from the final cross-sections, pitch and yaw from the VP bounds.
+        alphas, coef = self._model_alphas(model, x_rows, use_eq10, ratio, H)
+        sig_a = self._model_alpha_sigmas(model, x_rows, use_eq10, H)
+        sig_f = 0.0
+        if not use_eq10 and o.marker_width_tolerance_m > 0:
+            sig_f = o.marker_width_tolerance_m / H * math.hypot(1.0, ratio)
+        s_phi = roll_sigma(alphas, coef, 0.0, sig_a, sig_f)
+        s_psi, s_theta = self._vp_sigmas(model, phi, theta, psi, H, vp)
+        s_roll, s_pitch, s_yaw = _vehicle_sigmas(phi, theta, psi, s_phi, s_theta, s_psi, self.mount.tilt_rad)
+        # Curvature, lateral offset, spacing at the contact point, from the outermost lines used.
+        x_c = -float(cam_off[0])
+        centres = [0.5 * float(model.y(2 * j, x_c) + model.y(2 * j + 1, x_c)) for j in (0, n_lines - 1)]
+        curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if shape_deg >= 2 else 0.0
+        lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
+        spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
+        # Eq. (14) as printed, with the fit residual as dp (BEV px) and the width tolerance as dw.
+        g = bev.grid
+        bound = roll_bound_eq14(g.width, g.y_max_m - g.y_min_m, self.mount.height_m,
+                                o.marker_width_tolerance_m, rms_px)
+        if dbg is not None:
+            dbg.vp_px = (float(vp[0]), float(vp[1]))
+            dbg.R_o_from_cp = _R_o_from_cp(phi, theta, psi)
+            dbg.height_m = H
+            dbg.model = model
+        reason = ""
+        valid = True
+        if not all(math.isfinite(v) for v in (roll, pitch, yaw, s_roll, s_pitch, s_yaw)):
+            valid, reason = False, "non-finite result"
+        elif abs(roll) > math.radians(65) or abs(pitch) > math.radians(25) or abs(yaw) > math.radians(45):
+            valid, reason = False, "attitude out of range (roll 65, pitch 25, yaw 45 deg)"
+        return VisionEstimate(
+            roll, pitch, yaw, s_roll, s_pitch, s_yaw, valid,
+            curvature_1_m=curvature, lateral_offset_m=lateral, line_spacing_m=spacing,
+            camera_xyz_rad=(float(phi), float(theta), float(psi)), vp_px=(float(vp[0]), float(vp[1])),
+            n_lines=n_lines, roll_equation="eq10" if use_eq10 else "eq8", edge_rms_px=rms_px,
+            n_edge_points=n_points, iterations=iterations, warps=warps, roll_bound_eq14_rad=bound,
+            method=o.method, reason=reason, debug=dbg)
+
+    # ---- pieces ----
+
+    def _solve_roll(self, alphas: np.ndarray, coef: np.ndarray, seed: float = 0.0) -> float:
+        if self.options.solver == "numeric":
+            return solve_numeric(alphas, coef, seed)
+        a = np.atleast_2d(alphas)
+        return float(np.mean([solve_pade(row, coef, seed) for row in a]))
+
+    def _bev_cross_rows(self, lines: list[Marker]):
+        """BEV rows of the cross-sections: one at the farthest of the edges' near ends (the
+        paper, section IV.E), or several over the rows all lines cover."""
+        v_hi = min(m.v_near for m in lines)
+        v_lo = max(m.v_far for m in lines)
+        if v_hi <= v_lo:
+            return None
+        n = self.options.cross_sections
+        if n == 1:
+            return np.array([v_hi])
+        return np.linspace(v_hi, v_lo, n + 2)[1:-1]
+
+    def _bev_alphas(self, bev, lines, vs, use_eq10, ratio, f_vx):
+        """Eq. (9): ``alpha = atan2(p, f_vx)``, ``p`` the BEV column from the nadir, positive left."""
+        cols = [m.u_at(vs) for m in lines]
+        if use_eq10:
+            p = np.stack([bev.u0 - 0.5 * (ul + ur) for ul, ur in cols], axis=-1)
+            return np.arctan2(p, f_vx), coefficients_eq10()
+        (al, ar), (bl, br) = cols[0], cols[-1]
+        p = np.stack([bev.u0 - al, bev.u0 - ar, bev.u0 - bl, bev.u0 - br], axis=-1)
+        return np.arctan2(p, f_vx), coefficients_eq8(ratio)
+
+    def _model(self, edges: list[_Edge], R, H, deg, grid: BevGrid) -> LaneModel:
+        xs, ys = [], []
+        for e in edges:
+            x, y = ground_from_rays(e.rays, R, H)
+            ok = np.isfinite(x) & (x > 0.5) & (x < self.options.fit_range_m)
+            if ok.sum() < 3:
+                raise VisionError("an edge lies above the horizon at this pose")
+            xs.append(x[ok])
+            ys.append(y[ok])
+        return fit_lane_model(xs, ys, [e.line for e in edges], [e.side for e in edges], deg,
+                              self.camera.fy * H * grid.dx_m)
+
+    def _cross_x(self, model: LaneModel):
+        """Cross-sections along the road: one at the farthest of the edges' near ends (the
+        paper, section IV.E), or several over the range every edge covers."""
+        n = self.options.cross_sections
+        x_lo = float(model.x_min.max())
+        x_hi = float(model.x_max.min())
+        if x_hi <= x_lo:
+            if n == 1 or self.options.refine_iterations == 0:
+                return None
+            # No range where every line was seen (a dash far ahead, a line close by): the
+            # lines share the road's shape in the model, so cross the gap between them.
+            x_lo, x_hi = x_hi, x_lo
+        if n == 1:
+            return np.array([x_lo])
+        return np.linspace(x_lo, x_hi, n + 2)[1:-1]
+
+    def _model_alphas(self, model: LaneModel, xs, use_eq10, ratio, H):
+        """Angles of the edges (eq. (8)) or line centres (eq. (10)) from the nadir at the
+        cross-sections ``xs``: ``atan(y / H)``."""
+        J = model.n_lines
+        if use_eq10:
+            p = np.stack([0.5 * (model.y(2 * j, xs) + model.y(2 * j + 1, xs)) for j in range(3)], axis=-1)
+            return np.arctan(p / H), coefficients_eq10()
+        j1 = J - 1
+        p = np.stack([model.y(0, xs), model.y(1, xs), model.y(2 * j1, xs), model.y(2 * j1 + 1, xs)], axis=-1)
+        return np.arctan(p / H), coefficients_eq8(ratio)
+
+    def _model_alpha_sigmas(self, model: LaneModel, xs, use_eq10, H):
+        J = model.n_lines
+
+        def to_alpha(s, y):
+            return s * H / (H * H + y * y)
+
+        if use_eq10:
+            cols = [to_alpha(0.5 * np.hypot(model.sigma_y(2 * j, xs), model.sigma_y(2 * j + 1, xs)),
+                             0.5 * (model.y(2 * j, xs) + model.y(2 * j + 1, xs))) for j in range(3)]
+        else:
+            j1 = J - 1
+            cols = [to_alpha(model.sigma_y(k, xs), model.y(k, xs)) for k in (0, 1, 2 * j1, 2 * j1 + 1)]
+        return np.stack(cols, axis=-1)
+
+    def _vp_image_lines(self, bev: Bev, lines: list[Marker]):
+        """The paper's vanishing point: a straight line through each marker's centre in the
+        image (total least squares), intersected."""
+        homs = []
+        segs = []
+        for m in lines:
+            k = m.inliers
+            uc = 0.5 * (m.u_left[k] + m.u_right[k])
+            pts = np.stack([uc, m.v[k], np.ones(uc.size)], axis=-1) @ bev.image_from_bev.T
+            xy = pts[:, :2] / pts[:, 2:3]
+            c = xy.mean(axis=0)
+            _, _, vt = np.linalg.svd(xy - c, full_matrices=False)
+            d = vt[0]
+            n = np.array([-d[1], d[0]])
+            homs.append(np.array([n[0], n[1], -n @ c]))
+            t = (xy - c) @ d
+            segs.append((c + t.min() * d, c + t.max() * d))
+        p = intersect_lines(np.asarray(homs))
+        if abs(p[2]) < 1e-12:
+            raise VisionError("lane lines parallel in the image: no vanishing point")
+        return p[:2] / p[2], segs
+
+    def _vp_sigmas(self, model: LaneModel, phi, theta, psi, H, vp):
+        """Section V.B: bounds of the vanishing point from two points on each outer line,
+        moved by their 1-sigma (px), turned into 1-sigma of yaw and pitch (half the bound)."""
+        cam = self.camera
+        R = _R_o_from_cp(phi, theta, psi)
+        J = model.n_lines
+        pts, dps = [], []
+        for j in (J - 1, 0):      # right line: A, B; left line: C, D
+            kl, kr = 2 * j, 2 * j + 1
+            x_lo = max(model.x_min[kl], model.x_min[kr])
+            x_hi = min(model.x_max[kl], model.x_max[kr])
+            for x in (x_lo + 0.1 * (x_hi - x_lo), x_hi - 0.1 * (x_hi - x_lo)):
+                y = 0.5 * float(model.y(kl, x) + model.y(kr, x))
+                s = 0.5 * math.hypot(float(model.sigma_y(kl, x)[0]), float(model.sigma_y(kr, x)[0]))
+                p0 = cam.K @ (R.T @ np.array([x, y, -H]))
+                p1 = cam.K @ (R.T @ np.array([x, y + max(s, 1e-6), -H]))
+                a0 = p0[:2] / p0[2]
+                pts.append(a0)
+                dps.append(float(np.linalg.norm(p1[:2] / p1[2] - a0)))
+        dp = float(np.sqrt(np.mean(np.square(dps))))
+        dx, dy, _ = vp_bounds(pts[0], pts[1], pts[2], pts[3], dp)
+        if not (math.isfinite(dx) and math.isfinite(dy)):
+            return math.inf, math.inf
+        return angle_sigmas(cam.K, np.asarray(vp, float), 0.5 * dx, 0.5 * dy)
+
+
+def _vehicle_sigmas(phi, theta, psi, s_phi, s_theta, s_psi, tilt):
+    """Propagate the camera's XYZ sigmas to the vehicle's ZYX angles (central differences)."""
+    x0 = np.array([phi, theta, psi])
+    J = np.empty((3, 3))
+    e = 1e-6
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = e
+        a, _ = vehicle_from_camera_xyz(*(x0 + d), tilt)
+        b, _ = vehicle_from_camera_xyz(*(x0 - d), tilt)
+        J[:, k] = (np.array(a) - np.array(b)) / (2 * e)
+    cov = J @ np.diag([s_phi**2, s_theta**2, s_psi**2]) @ J.T
+    return tuple(float(math.sqrt(max(cov[i, i], 0.0))) for i in range(3))
+
+
+def _seed_rpy(seed):
+    if seed is None:
+        return None
+    if isinstance(seed, VisionEstimate):
+        return seed.rpy_rad if seed.valid else None
+    try:
+        r, p, y = (float(v) for v in seed)
+    except (TypeError, ValueError):
+        raise VisionError(f"seed must be a VisionEstimate or (roll, pitch, yaw) in rad, got {seed!r}") from None
+    if not all(math.isfinite(v) for v in (r, p, y)):
+        return None
+    return r, p, y
+
+
+def _sanitise(est: VisionEstimate) -> VisionEstimate:
+    """A valid estimate never carries a non-finite number."""
+    if est.valid:
+        vals = (est.roll_rad, est.pitch_rad, est.yaw_rad, est.roll_sigma_rad, est.pitch_sigma_rad,
+                est.yaw_sigma_rad, est.curvature_1_m, est.lateral_offset_m)
+        if not all(math.isfinite(v) for v in vals):
+            return replace(est, valid=False, reason="non-finite result",
+                           roll_rad=math.nan, pitch_rad=math.nan, yaw_rad=math.nan)
+    return est
+
+
+def estimate(image, camera: Camera, mount: Mount, seed=None, *, road: RoadMarkings = RoadMarkings(),
+             options: EstimatorOptions = EstimatorOptions()) -> VisionEstimate:
+    """The vehicle's roll, pitch and yaw relative to the road from one frame.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) array
+        The camera's picture (BGR as OpenCV reads it, or grey), ``uint8`` (or ``uint16``,
+        float in [0, 1] or [0, 255]).
+    camera : Camera
+    mount : Mount
+    seed : VisionEstimate or (roll, pitch, yaw) in rad, optional
+        A previous estimate: only where the search starts, not needed for correctness.
+    road : RoadMarkings
+        Marker widths and whether a centre line is painted (three lines: eq. (10)).
+    options : EstimatorOptions
+
+    Returns
+    -------
+    VisionEstimate
+        ``valid=False`` (with a ``reason``) for pictures without usable lane lines, of the wrong
+        size, empty or with non-finite pixels; never raises for them.
+    """
+    return Estimator(camera, mount, road, options).estimate(image, seed)
