@@ -10,6 +10,7 @@ State (named slices in :class:`S`, units in the names)::
     accel_x           m/s^2 dv/dt
     bank_rate         rad/s d(bank)/dt
     accel_bias        m/s^2 accelerometer bias, vehicle axes (3)
+    curvature         1/m   road curvature at the vehicle (positive turning left)
 
 with ``g'`` the level frame turned to the road's heading, so that
 ``R_g'_from_v = Rz(yaw_rel) Ry(pitch_w) Rx(roll_w)`` and the attitude relative to the road is
@@ -24,11 +25,11 @@ Process (one IMU interval ``dt``, rates ``w = gyro - bias`` averaged over the in
 
     R_g'_from_v <- Rz(-dpsi_road) R_g'_from_v exp([w dt]x)     (exact for the interval)
     dpsi_road = kappa v cos(yaw_rel) / (1 - kappa d) dt          road heading change, from the
-                                                                 lane curvature kappa and the
+                                                                 curvature state and the
                                                                  lateral offset d of vision
     bank += bank_rate dt;  speed += accel_x dt
     bank_rate' = -bank_rate / tau_bank + noise     (first-order Gauss-Markov)
-    grade, gyro_bias, accel_bias, accel_x: random walks
+    grade, gyro_bias, accel_bias, accel_x, curvature: random walks
 
 The bank has a rate state: superelevation runoffs are ramps of a few deg/s that a plain random
 walk could only follow by letting vision noise through; with a rate state the ramp is tracked
@@ -95,9 +96,10 @@ class S:
     ACCEL_X = 9
     BANK_RATE = 10
     ACCEL_BIAS = slice(11, 14)
+    CURVATURE = 14
 
 
-DIM_X = 14
+DIM_X = 15
 
 
 @dataclass(frozen=True)
@@ -121,9 +123,10 @@ class NoiseModel:
     no_pitch_rate_walk_rad_sqrt_s: float = math.radians(3.0)  # pitch motion without a pitch gyro
     #: Accelerometer noise plus model error per axis (x, y, z). The vertical axis also carries
     #: suspension and road-profile motion that the model leaves out; trusting it more lets
-    #: the EKF read roll from f_z = g / cos(roll) in turns, which a bank runoff's 0.1 m/s^2
-    #: of vertical acceleration then biases by a degree (seen on the simulator).
-    accel_meas_m_s2: tuple[float, float, float] = (0.15, 0.15, 0.6)
+    #: the EKF read roll from f_z = g / cos(roll) in turns, where a bank runoff's 0.1 m/s^2 of
+    #: vertical acceleration (or a vertical bias) then shifts roll and the lateral bias
+    #: together, by up to a degree on the simulator.
+    accel_meas_m_s2: tuple[float, float, float] = (0.1, 0.1, 1.0)
     speed_meas_m_s: float = 0.05
     vision_sigma_scale: float = 1.0                        # multiplies the vision's own sigmas
     vision_sigma_floor_rad: float = math.radians(0.05)
@@ -139,8 +142,11 @@ class NoiseModel:
     #: Accelerometer bias prior: what is left after calibration. The lateral part cannot be
     #: told from a bank offset (both shift f_y by g * angle), so it bounds the bank accuracy:
     #: 0.01 m/s^2 is 0.06 deg of bank.
-    init_accel_bias_m_s2: float = 0.03
+    init_accel_bias_m_s2: float | tuple[float, float, float] = 0.03
     accel_bias_walk_m_s2_sqrt_s: float = 0.0005
+    init_curvature_1_m: float = 0.01
+    curvature_walk_1_m_sqrt_s: float = 0.002              # clothoids: ~0.005 1/m in 2 s
+    curvature_meas_1_m: float = 0.002                     # lane-fit curvature, when it gives none
 
 
 @dataclass(frozen=True)
@@ -149,8 +155,8 @@ class ImuStep:
 
     dt_s: float
     gyro_rad_s: np.ndarray           # mean measured rate over the interval (bias included)
-    curvature_1_m: float = 0.0       # road curvature at the vehicle (lane fit); NaN: unknown
-    lateral_offset_m: float = 0.0    # vehicle's offset from the line that curvature belongs to
+    follow_road: bool = False        # no lane fit: the road turns with the vehicle
+    lateral_offset_m: float = 0.0    # vehicle's offset from the lane line the curvature is of
 
 
 _VISION_STATES = (S.ROLL_W, S.PITCH_W, S.YAW_REL, S.BANK, S.GRADE)
@@ -229,7 +235,10 @@ def _inv_small(M: np.ndarray) -> np.ndarray:
 
 
 def _angle_residual(a, b):
-    return wrap_angle(np.asarray(a) - np.asarray(b))
+    """Residual of (roll, pitch, yaw[, curvature]): the angles wrapped to [-pi, pi)."""
+    r = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    r[:3] = wrap_angle(r[:3])
+    return r
 
 
 class AttitudeEKF(ExtendedKalmanFilter):
@@ -258,6 +267,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         sig0[S.SPEED], sig0[S.ACCEL_X] = n.init_speed_m_s, n.init_accel_m_s2
         sig0[S.BANK_RATE] = n.init_bank_rate_rad_s
         sig0[S.ACCEL_BIAS] = n.init_accel_bias_m_s2
+        sig0[S.CURVATURE] = n.init_curvature_1_m
         self.x = np.zeros(DIM_X)
         self.P = np.diag(sig0**2)
         self._I = np.eye(DIM_X)
@@ -272,11 +282,12 @@ class AttitudeEKF(ExtendedKalmanFilter):
         q[S.GYRO_BIAS] = n.gyro_bias_walk_rad_s_sqrt_s**2
         q[S.ACCEL_X] = n.accel_x_walk_m_s2_sqrt_s**2
         q[S.ACCEL_BIAS] = n.accel_bias_walk_m_s2_sqrt_s**2
+        q[S.CURVATURE] = n.curvature_walk_1_m_sqrt_s**2
         q[S.ROLL_W] = q[S.YAW_REL] = n.pitch_walk_rad_sqrt_s**2
         q[S.PITCH_W] = (n.pitch_walk_rad_sqrt_s if has_pitch_rate else n.no_pitch_rate_walk_rad_sqrt_s) ** 2
         self._q_per_s = q
         self.last_d2 = math.nan
-        self._gate = {k: float(chi2.ppf(noise.gate_probability, k)) for k in (1, 2, 3)}
+        self._gate = {k: float(chi2.ppf(noise.gate_probability, k)) for k in (1, 2, 3, 4)}
         self._R_accel = np.diag(np.asarray(noise.accel_meas_m_s2, dtype=float) ** 2)
         self._R_speed = np.array([[noise.speed_meas_m_s**2]])
         self._H_speed = np.zeros((1, DIM_X))
@@ -284,7 +295,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         R_, P_, Y_ = S.ROLL_W, S.PITCH_W, S.YAW_REL
         BX, BY, BZ = S.GYRO_BIAS_X, S.GYRO_BIAS_Y, S.GYRO_BIAS_Z
         cells = [(R_, R_), (R_, P_), (R_, BX), (R_, BY), (R_, BZ), (P_, R_), (P_, BY), (P_, BZ),
-                 (Y_, R_), (Y_, P_), (Y_, BY), (Y_, BZ), (Y_, Y_), (Y_, S.SPEED),
+                 (Y_, R_), (Y_, P_), (Y_, BY), (Y_, BZ), (Y_, Y_), (Y_, S.SPEED), (Y_, S.CURVATURE),
                  (S.SPEED, S.ACCEL_X), (S.BANK, S.BANK_RATE), (S.BANK_RATE, S.BANK_RATE)]
         self._F_idx = np.array([i * DIM_X + j for i, j in cells])
 
@@ -307,7 +318,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         R = R_from_rpy_scalar(x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL]) @ so3_exp_scalar(p * dt, q * dt, r * dt)
         roll, pitch, yaw = rpy_from_R_scalar(R)
         x[S.ROLL_W], x[S.PITCH_W] = roll, pitch
-        if not math.isnan(u.curvature_1_m):
+        if not u.follow_road:
             x[S.YAW_REL] = yaw - self._road_turn_rate(x, u) * dt
         x[S.BANK] += x[S.BANK_RATE] * dt
         x[S.BANK_RATE] *= math.exp(-dt / self.noise.bank_rate_tau_s)
@@ -316,8 +327,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     def road_turn_rate(self, u: ImuStep) -> float:
         """Heading rate of the road at the vehicle, rad/s: ``kappa v cos(yaw_rel) / (1 - kappa d)``,
-        or the vehicle's own heading rate when there is no lane curvature (``kappa`` NaN)."""
-        if math.isnan(u.curvature_1_m):
+        or the vehicle's own heading rate when there is no lane fit (``follow_road``)."""
+        if u.follow_road:
             p, q, r = self.body_rates(u.gyro_rad_s)
             sf, cf = math.sin(self.x[S.ROLL_W]), math.cos(self.x[S.ROLL_W])
             return (q * sf + r * cf) / math.cos(self.x[S.PITCH_W])
@@ -325,9 +336,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     @staticmethod
     def _road_turn_rate(x, u: ImuStep) -> float:
-        k = u.curvature_1_m
-        if k == 0.0:
-            return 0.0
+        k = x[S.CURVATURE]
         return k * x[S.SPEED] * math.cos(x[S.YAW_REL]) / max(1.0 - k * u.lateral_offset_m, 0.2)
 
     def transition(self, u: ImuStep):
@@ -354,16 +363,17 @@ class AttitudeEKF(ExtendedKalmanFilter):
                     0.0, 0.0, 0.0,
                     r * sf / (cf**2 * ct) * dt, r * st / (cf * ct**2) * dt, 0.0, -dt / (cf * ct)]
             e = (1.0, 0.0, tt / cf, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0 / (cf * ct))
-        k = u.curvature_1_m
-        if math.isnan(k):  # road turns with the vehicle: yaw relative to the road is held
+        follow = u.follow_road
+        if follow:  # road turns with the vehicle: yaw relative to the road is held
             vals[8:12] = [0.0, 0.0, 0.0, 0.0]
-            vals += [1.0, 0.0]
+            vals += [1.0, 0.0, 0.0]
             e = e[:6] + (0.0, 0.0, 0.0)
         else:
+            k = x[S.CURVATURE]
             scale = 1.0 / max(1.0 - k * u.lateral_offset_m, 0.2)
-            vals += [1.0 + k * x[S.SPEED] * math.sin(psi) * scale * dt, -k * math.cos(psi) * scale * dt]
+            vals += [1.0 + k * x[S.SPEED] * math.sin(psi) * scale * dt, -k * math.cos(psi) * scale * dt,
+                     -x[S.SPEED] * math.cos(psi) * scale**2 * dt]  # d(k / (1 - k d))/dk = scale^2
         vals += [dt, dt, math.exp(-dt / self.noise.bank_rate_tau_s)]
-        follow = math.isnan(k)
         F = self._I.copy()
         F.flat[self._F_idx] = vals
         E = np.array(e).reshape(3, 3)
@@ -411,12 +421,20 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.x_post, self.P_post = self.x, self.P
         return True
 
-    def update_vision(self, angles_rad, sigmas_rad) -> bool:
-        """Vision (roll, pitch, yaw) relative to the road, with the estimator's own 1-sigma."""
+    def update_vision(self, angles_rad, sigmas_rad, curvature_1_m: float = math.nan,
+                      curvature_sigma_1_m: float = math.nan) -> bool:
+        """Vision (roll, pitch, yaw) relative to the road, with the estimator's own 1-sigma, and
+        the lane-fit curvature when there is one."""
         n = self.noise
         sig = np.maximum(np.asarray(sigmas_rad, dtype=float) * n.vision_sigma_scale, n.vision_sigma_floor_rad)
-        return self.gated_update(np.asarray(angles_rad, dtype=float), vision_jacobian(self.x),
-                                 vision_hx(self.x), np.diag(sig**2), residual=_angle_residual)
+        z, H, hx = np.asarray(angles_rad, dtype=float), vision_jacobian(self.x), vision_hx(self.x)
+        if math.isfinite(curvature_1_m):
+            s_k = curvature_sigma_1_m if math.isfinite(curvature_sigma_1_m) else n.curvature_meas_1_m
+            Hk = np.zeros((1, DIM_X))
+            Hk[0, S.CURVATURE] = 1.0
+            z, H = np.append(z, curvature_1_m), np.vstack([H, Hk])
+            hx, sig = np.append(hx, self.x[S.CURVATURE]), np.append(sig, s_k)
+        return self.gated_update(z, H, hx, np.diag(sig**2), residual=_angle_residual)
 
     def specific_force_model(self, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0):
         """Predicted specific force at the IMU (vehicle axes, m/s^2) and its Jacobian.
@@ -466,10 +484,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
         tto = sto / cto
         dth = (-sto, cto * so, cto * co)       # de/dtheta_o
         dph = (0.0, sto * co, -sto * so)       # de/dphi_o
+        # columns p, q, r; d(w x e)/dw = -[e]x
         Jw = v * np.array([
-            [dph[0], -ez + dth[0] * co + dph[0] * tto * so, ey - dth[0] * so + dph[0] * tto * co],
-            [ez + dph[1], dth[1] * co + dph[1] * tto * so, -ex - dth[1] * so + dph[1] * tto * co],
-            [-ey + dph[2], ex + dth[2] * co + dph[2] * tto * so, -dth[2] * so + dph[2] * tto * co],
+            [dph[0], ez + dth[0] * co + dph[0] * tto * so, -ey - dth[0] * so + dph[0] * tto * co],
+            [-ez + dph[1], dth[1] * co + dph[1] * tto * so, ex - dth[1] * so + dph[1] * tto * co],
+            [ey + dph[2], -ex + dth[2] * co + dph[2] * tto * so, -dth[2] * so + dph[2] * tto * co],
         ])
         H = np.zeros((3, DIM_X))
         H[:, S.ACCEL_BIAS] = np.eye(3)

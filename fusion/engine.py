@@ -34,9 +34,9 @@ class FusionOptions:
     gravity_every: int = 1
     #: How far back late vision results are still applied, s.
     history_s: float = 1.0
-    #: A lane-fit curvature older than this is dropped; the road is then assumed to turn with
-    #: the vehicle (yaw relative to the road held), s.
-    curvature_hold_s: float = 0.25
+    #: Without a lane fit for this long the road is assumed to turn with the vehicle (yaw
+    #: relative to the road held, the curvature state unused), s.
+    lane_fit_hold_s: float = 0.25
     #: After this many vision results in a row fail the chi-square gate, the road states
     #: (yaw relative to the road, bank, grade) are re-acquired from the next one: their
     #: covariance is reset to the initial one, so that a filter that drifted while the lanes
@@ -117,12 +117,15 @@ class FusionStream:
         self._n = 0
         self._initialized = False
         self._vision_initialized = False
-        self._curvature = (0.0, 0.0, -math.inf)   # kappa, offset, time
+        self._lane_fit = (0.0, -math.inf)   # lateral offset m, time of the last lane fit
         self._last_vision_t = -math.inf
         self._road_rate = 0.0
         self._rejected_in_row = 0
+        self._speed_initialized = False
+        self._speed_rejected_in_row = 0
         self.counts = dict(imu=0, vision_used=0, vision_rejected=0, vision_invalid=0, vision_late=0,
-                           vision_too_old=0, vision_reacquired=0, gravity_rejected=0, speed_rejected=0)
+                           vision_too_old=0, vision_reacquired=0, gravity_rejected=0, speed_rejected=0,
+                           speed_reacquired=0)
 
     # ---- inputs ----
 
@@ -145,7 +148,8 @@ class FusionStream:
             self._hist.popleft()
 
     def add_vision(self, t_s: float, angles_rad, sigmas_rad, valid: bool = True,
-                   curvature_1_m: float = math.nan, lateral_offset_m: float = math.nan) -> None:
+                   curvature_1_m: float = math.nan, lateral_offset_m: float = math.nan,
+                   curvature_sigma_1_m: float = math.nan) -> None:
         """A vision result: roll, pitch, yaw relative to the road at capture time ``t_s``."""
         if not self.options.use_vision:
             return
@@ -154,7 +158,7 @@ class FusionStream:
         if not valid or not (np.all(np.isfinite(angles)) and np.all(np.isfinite(sig))):
             self.counts["vision_invalid"] += 1
             return
-        item = (float(t_s), angles, sig, float(curvature_1_m), float(lateral_offset_m))
+        item = (float(t_s), angles, sig, float(curvature_1_m), float(lateral_offset_m), float(curvature_sigma_1_m))
         if not self._hist or item[0] > self._hist[-1].t:
             self._pending.append(item)   # the IMU has not reached it yet
         else:
@@ -165,7 +169,7 @@ class FusionStream:
 
     def _init_from_accel(self, s: _ImuSample) -> None:
         ekf = self.ekf
-        v = s.speed if math.isfinite(s.speed) else 0.0
+        v = s.speed if math.isfinite(s.speed) else 0.0  # the first wheel speed sets it properly
         f, r = s.accel, s.gyro[2]
         ekf.x[S.ROLL_W] = math.atan2(f[1] - v * r, f[2])
         ekf.x[S.PITCH_W] = math.asin(max(-1.0, min(1.0, -f[0] / 9.80665)))
@@ -191,12 +195,12 @@ class FusionStream:
             self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index)
             s.gyro_dot = (s.gyro - prev.gyro) / (s.t - prev.t)
         ekf = self.ekf
-        if s.index % self.options.gravity_every == 0:
+        if s.speed_fresh:
+            self._speed_update(s.speed)
+        # The gravity reference needs the speed (centripetal term): not before the first one.
+        if self._speed_initialized and s.index % self.options.gravity_every == 0:
             if not ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate):
                 self.counts["gravity_rejected"] += 1
-        if s.speed_fresh:
-            if not ekf.update_speed(s.speed):
-                self.counts["speed_rejected"] += 1
         # At the sample's own time (or before the very first sample): after its IMU
         # measurements, in the same order as a late result would be applied.
         for v in visions:
@@ -212,10 +216,9 @@ class FusionStream:
     def _propagate(self, t0: float, t1: float, gyro, imu_index: int) -> None:
         if t1 <= t0:
             return
-        kappa, offset, t_k = self._curvature
-        if t1 - t_k > self.options.curvature_hold_s:
-            kappa, offset = math.nan, 0.0  # no lane fit: the road turns with the vehicle
-        u = ImuStep(t1 - t0, gyro, kappa, offset)
+        offset, t_fit = self._lane_fit
+        follow = t1 - t_fit > self.options.lane_fit_hold_s  # no lane fit: the road turns with the vehicle
+        u = ImuStep(t1 - t0, gyro, follow, offset)
         self.ekf.propagate(u)
         self._road_rate = self.ekf.road_turn_rate(u)
         if self.record:
@@ -223,17 +226,36 @@ class FusionStream:
             self.steps.append(StepRecord(t1, ekf.F.copy(), ekf.x_prior.copy(), ekf.P_prior.copy(),
                                          ekf.x.copy(), ekf.P.copy(), imu_index))
 
-    def _vision_update(self, t, angles, sig, kappa, offset) -> None:
+    def _speed_update(self, speed: float) -> None:
+        """Wheel speed; the first one (and one after a run of rejections) sets the state."""
+        ekf, n = self.ekf, self.options.noise
+        if not self._speed_initialized or self._speed_rejected_in_row >= self.options.reacquire_after_rejections:
+            ekf.x[S.SPEED], ekf.x[S.ACCEL_X] = speed, 0.0
+            for i, sig in ((S.SPEED, n.speed_meas_m_s), (S.ACCEL_X, n.init_accel_m_s2)):
+                ekf.P[i, :] = 0.0
+                ekf.P[:, i] = 0.0
+                ekf.P[i, i] = sig**2
+            self.counts["speed_reacquired"] += self._speed_initialized
+            self._speed_initialized, self._speed_rejected_in_row = True, 0
+            return
+        if ekf.update_speed(speed):
+            self._speed_rejected_in_row = 0
+        else:
+            self.counts["speed_rejected"] += 1
+            self._speed_rejected_in_row += 1
+
+    def _vision_update(self, t, angles, sig, kappa, offset, kappa_sigma=math.nan) -> None:
         ekf = self.ekf
-        if math.isfinite(kappa):
-            self._curvature = (kappa, offset if math.isfinite(offset) else 0.0, t)
+        self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
             # First frame: take yaw, bank and grade from it so that the filter starts consistent.
             ekf.x[S.YAW_REL] = angles[2]
             ekf.x[S.BANK] = ekf.x[S.ROLL_W] - angles[0]
             ekf.x[S.GRADE] = ekf.x[S.PITCH_W] - angles[1]
+            if math.isfinite(kappa):
+                ekf.x[S.CURVATURE] = kappa
             self._vision_initialized = True
-        if ekf.update_vision(angles, sig):
+        if ekf.update_vision(angles, sig, kappa, kappa_sigma):
             self.counts["vision_used"] += 1
             self._last_vision_t = t
             self._rejected_in_row = 0
@@ -241,29 +263,31 @@ class FusionStream:
             self.counts["vision_rejected"] += 1
             self._rejected_in_row += 1
             if self._rejected_in_row >= self.options.reacquire_after_rejections:
-                self._reacquire(angles)
+                self._reacquire(angles, kappa)
                 self.counts["vision_reacquired"] += 1
-                if ekf.update_vision(angles, sig):
+                if ekf.update_vision(angles, sig, kappa, kappa_sigma):
                     self.counts["vision_used"] += 1
                     self._last_vision_t = t
                 self._rejected_in_row = 0
         if self.record and self.steps:
             self.steps[-1].x_post, self.steps[-1].P_post = ekf.x.copy(), ekf.P.copy()
 
-    def _reacquire(self, angles) -> None:
+    def _reacquire(self, angles, kappa: float = math.nan) -> None:
         """Reset the road states to agree with ``angles`` and reopen their covariance."""
         ekf, n = self.ekf, self.options.noise
         ekf.x[S.YAW_REL] = angles[2]
         ekf.x[S.BANK] = ekf.x[S.ROLL_W] - angles[0]
         ekf.x[S.GRADE] = ekf.x[S.PITCH_W] - angles[1]
         ekf.x[S.BANK_RATE] = 0.0
+        if math.isfinite(kappa):
+            ekf.x[S.CURVATURE] = kappa
         for i, sig in ((S.YAW_REL, n.init_angle_rad), (S.BANK, n.init_bank_rad), (S.GRADE, n.init_grade_rad),
-                       (S.BANK_RATE, n.init_bank_rate_rad_s)):
+                       (S.BANK_RATE, n.init_bank_rate_rad_s), (S.CURVATURE, n.init_curvature_1_m)):
             ekf.P[i, :] = 0.0
             ekf.P[:, i] = 0.0
             ekf.P[i, i] = sig**2
 
-    def _apply_late(self, t, angles, sig, kappa, offset) -> None:
+    def _apply_late(self, t, angles, sig, kappa, offset, kappa_sigma=math.nan) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it
         and re-propagate the stored samples after it."""
         hist = self._hist
@@ -277,7 +301,7 @@ class FusionStream:
         if replay and self.record:
             raise ValueError("late vision result with record=True: feed inputs in time order")
         self.ekf.x, self.ekf.P = base.x_post.copy(), base.P_post.copy()
-        item = (t, angles, sig, kappa, offset)
+        item = (t, angles, sig, kappa, offset, kappa_sigma)
         if not replay:  # exactly at the newest sample's time
             self._vision_update(*item)
             base.x_post, base.P_post = self.ekf.x.copy(), self.ekf.P.copy()

@@ -6,7 +6,8 @@ Every key is optional; units are in the names. Example::
     [fusion]
     gyro_noise_deg_s = 0.05          # 1-sigma of one gyro sample
     accel_noise_m_s2 = [0.15, 0.15, 0.6]
-    accel_bias_sigma_m_s2 = 0.03     # residual after calibration; bounds the bank accuracy
+    accel_bias_sigma_m_s2 = 0.03     # residual after calibration (or one per axis); its lateral
+                                     # part bounds the bank accuracy (0.01 m/s^2 = 0.06 deg)
     camera_time_offset_s = 0.0       # added to frames.csv times
     estimate_time_offset = false     # estimate it from the data and use the estimate
     smooth = false                   # forward filter + RTS smoother (offline)
@@ -36,7 +37,6 @@ _NOISE_KEYS = {
     "gyro_noise_deg_s": ("gyro_noise_rad_s", math.radians),
     "gyro_bias_walk_deg_s_sqrt_s": ("gyro_bias_walk_rad_s_sqrt_s", math.radians),
     "gyro_bias_sigma_deg_s": ("init_gyro_bias_rad_s", math.radians),
-    "accel_bias_sigma_m_s2": ("init_accel_bias_m_s2", float),
     "accel_bias_walk_m_s2_sqrt_s": ("accel_bias_walk_m_s2_sqrt_s", float),
     "speed_noise_m_s": ("speed_meas_m_s", float),
     "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians),
@@ -60,6 +60,10 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
             lo = 0.0 if key != "gate_probability" else 0.5
             hi = None if key != "gate_probability" else 0.999999
             changes[name] = conv(t.get(key, "float", min=lo, max=hi))
+    if t.has("accel_bias_sigma_m_s2"):
+        v = t.data["accel_bias_sigma_m_s2"]
+        changes["init_accel_bias_m_s2"] = (t.get("accel_bias_sigma_m_s2", "floats", length=3, min=0.0)
+                                           if isinstance(v, list) else t.get("accel_bias_sigma_m_s2", "float", min=0.0))
     if t.has("accel_noise_m_s2"):
         changes["accel_meas_m_s2"] = t.get("accel_noise_m_s2", "floats", length=3, min=1e-6)
     noise = replace(noise, **changes)
@@ -67,7 +71,7 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
         noise=noise,
         gravity_every=t.get("gravity_every", "int", 1, min=1, max=100),
         history_s=t.get("history_s", "float", 1.0, min=0.0, max=60.0),
-        curvature_hold_s=t.get("curvature_hold_s", "float", 0.25, min=0.0, max=10.0),
+        lane_fit_hold_s=t.get("lane_fit_hold_s", "float", 0.25, min=0.0, max=10.0),
         reacquire_after_rejections=t.get("reacquire_after_rejections", "int", 10, min=1),
     )
     run = RunSettings(

@@ -37,7 +37,8 @@ class SynthDrive:
 @lru_cache(maxsize=8)
 def synth_drive(scenario: str = "banked_curves_60s.toml", duration_s: float | None = None,
                 vision_sigma_deg: float = 0.3, fps: float = 30.0, seed: int = 0,
-                accel_bias_m_s2: tuple = (0.03, 0.01, -0.03), pitch_rate: bool = True) -> SynthDrive:
+                accel_bias_m_s2: tuple = (0.03, 0.01, -0.03), pitch_rate: bool = True,
+                curvature_error: float = 0.0) -> SynthDrive:
     sc = load_scenario(SCENARIOS / scenario)
     imu_spec = dataclasses.replace(sc.imu, accel_bias_m_s2=accel_bias_m_s2, pitch_rate=pitch_rate)
     sc = dataclasses.replace(sc, imu=imu_spec, duration_s=duration_s or sc.duration_s)
@@ -67,7 +68,9 @@ def synth_drive(scenario: str = "banked_curves_60s.toml", duration_s: float | No
         "roll_deg": np.degrees(tr["roll"]) + noise[:, 0], "pitch_deg": np.degrees(tr["pitch"]) + noise[:, 1],
         "yaw_deg": np.degrees(tr["yaw"]) + noise[:, 2], "valid": True,
         "roll_sigma_deg": vision_sigma_deg, "pitch_sigma_deg": vision_sigma_deg, "yaw_sigma_deg": vision_sigma_deg,
-        "curvature_1_m": tr["curvature_1_m"], "lateral_offset_m": tr["lateral_offset_m"],
+        "curvature_1_m": tr["curvature_1_m"] * (1.0 + curvature_error), "lateral_offset_m": tr["lateral_offset_m"],
+        # what a good lane fit would claim: 2e-4 1/m plus 5 % (a biased fit lies about it)
+        "curvature_sigma_1_m": 2e-4 + 0.05 * np.abs(tr["curvature_1_m"]),
     })
     tt = np.arange(0.0, sc.duration_s, 0.01)
     truth = truth_frame(traj, tt, tt)

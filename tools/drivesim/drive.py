@@ -31,6 +31,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from fusion.errors import InputError
+from imu.config import ImuMount
 
 from .imu_model import simulate_imu
 from .render import Renderer
@@ -91,6 +92,14 @@ def truth_frame(traj: Trajectory, t_drive_s: np.ndarray, t_clock_s: np.ndarray) 
     return df
 
 
+def _write_table(df: pd.DataFrame, path: Path) -> None:
+    """CSV with 9 significant digits, except the times: microseconds, whatever the epoch
+    (a BLF log's clock is absolute epoch seconds, where 9 digits would be whole seconds)."""
+    df = df.copy()
+    df["t_s"] = df["t_s"].map("{:.6f}".format)
+    df.to_csv(path, index=False, float_format="%.9g")
+
+
 def render_frames(scenario: Scenario, t_drive_s, *, road: Road | None = None, traj: Trajectory | None = None,
                   rng: np.random.Generator | None = None, sensor: bool = True):
     """Yield the camera frames (uint8 BGR, or linear float radiance with ``sensor=False``) at
@@ -131,7 +140,14 @@ def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps
               f"position_m = [{', '.join(repr(float(p)) for p in imu.position_m)}]",
               "", "[can]", f'dbc = "{dbc_name}"', "", "[can.signals]"]
     lines += [f'{k} = "{v}"' for k, v in signals.items()]
-    lines += ["", "[video]", f"fps = {fps!r}", f"start_s = {start_s!r}", ""]
+    lines += ["", "[video]", f"fps = {fps!r}", f"start_s = {start_s!r}"]
+    # The simulated IMU's datasheet values, as a user would enter theirs: gyro noise and the
+    # accelerometer's calibration residual per vehicle axis; the filter's model-error
+    # allowances stay at their defaults.
+    bias_sigma_v = np.abs(ImuMount(imu.axes, imu.position_m).R_v_from_imu) @ np.abs(np.asarray(imu.accel_bias_m_s2))
+    lines += ["", "[fusion]", f"gyro_noise_deg_s = {max(imu.gyro_noise_deg_s, 1e-3)!r}",
+              "accel_bias_sigma_m_s2 = [" + ", ".join(repr(max(float(b), 0.005)) for b in bias_sigma_v) + "]",
+              ""]
     return "\n".join(lines)
 
 
@@ -170,16 +186,16 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
                            include_pitch_rate=scenario.imu.pitch_rate, seed=scenario.seed)
     shutil.copyfile(DBC_PATH, files.dbc)
     imu_true = imu_true.assign(t_s=imu_true["t_s"] + offset)
-    imu_true.to_csv(files.imu_truth, index=False, float_format="%.9g")
+    _write_table(imu_true, files.imu_truth)
 
     t_truth = np.arange(int(math.floor(scenario.duration_s * scenario.truth_rate_hz + 1e-9)) + 1) / scenario.truth_rate_hz
-    truth_frame(traj, t_truth, t_truth + offset).to_csv(files.truth, index=False, float_format="%.9g")
+    _write_table(truth_frame(traj, t_truth, t_truth + offset), files.truth)
 
     n = scenario.n_frames if max_frames is None else min(max_frames, scenario.n_frames)
     t_frames = scenario.video.start_s + np.arange(n) / scenario.video.fps
     tf = truth_frame(traj, t_frames, t_frames + offset)
     tf.insert(0, "frame", np.arange(n))
-    tf.to_csv(files.truth_frames, index=False, float_format="%.9g")
+    _write_table(tf, files.truth_frames)
     pd.DataFrame({"frame": np.arange(n), "t_s": t_frames + offset + scenario.video.camera_time_offset_s}).to_csv(
         files.frames, index=False, float_format="%.9f")
     files.config.write_text(_config_toml(scenario, files.dbc.name, signal_map(scenario.imu.pitch_rate),

@@ -1,0 +1,162 @@
+"""Benchmark of the fusion (issue 5): accuracy against truth, consistency, lane loss, speed.
+
+Usage::
+
+    .venv/bin/python tools/bench_fusion.py            # all drives (renders what is not cached)
+    .venv/bin/python tools/bench_fusion.py --quick    # the 20 s drives only
+
+For each simulated motorcycle drive (gyro bias and noise, banked curves of 0 to 7 deg) it
+runs the whole ``vifusion run`` as a user would (a subprocess, timed), then prints:
+
+* RMSE against truth after 2 s of convergence: fused (forward filter and RTS smoother), vision
+  alone, the plain bank of Damon et al. 2018 (IMU-only roll minus vision roll);
+* the share of samples whose NEES of (roll, pitch, yaw, bank) lies in its 95 % chi-square band;
+* lane loss: vision removed for 5 s, the worst roll error meanwhile and the time after the
+  lanes return until the roll error is back within the drive's own RMSE band;
+* speed: the run's wall time against the drive's duration, with the fixed costs apart, and the
+  filter alone in IMU samples per second.
+
+Full drives (video, CAN log, truth) are cached under ``.cache/drives/full-<name>-<key>/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+CACHE = ROOT / ".cache" / "drives"
+SCENARIOS = ROOT / "configs" / "scenarios"
+DRIVES = ("banked_curves_60s", "banked_curve_right_7deg", "banked_curve_left_5deg")
+QUICK = ("banked_curve_right_7deg", "banked_curve_left_5deg")
+BARS = {"roll": 0.15, "pitch": 0.15, "yaw": 0.1, "bank": 0.3}
+
+
+def cached_full_drive(name: str) -> Path:
+    from drivesim.drive import simulate
+    from drivesim.scenario import load_scenario
+
+    path = SCENARIOS / f"{name}.toml"
+    h = hashlib.sha256(path.read_bytes())
+    for f in ("road.py", "trajectory.py", "render.py", "imu_model.py", "canlog.py", "drive.py"):
+        h.update((ROOT / "tools" / "drivesim" / f).read_bytes())
+    folder = CACHE / f"full-{name}-{h.hexdigest()[:12]}"
+    if not (folder / "config.toml").exists():
+        simulate(load_scenario(path), folder, overwrite=True)
+    return folder
+
+
+def run_cli(drive: Path, out: Path, *extra: str) -> tuple[float, dict]:
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "fusion", "run", "--drive", str(drive), "--out", str(out), "--quiet",
+                           *extra], capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"vifusion run failed on {drive}:\n{proc.stderr}")
+    return wall, json.loads((out / "report" / "summary.json").read_text())
+
+
+def lane_loss(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[float, float]:
+    """Worst roll error with vision removed for 5 s from ``t_loss_s`` after the start, and the
+    time after the lanes return until the error stays within 2x the drive's own roll RMSE."""
+    from fusion.config import load_config
+    from fusion.metrics import interp_truth
+    from fusion.pipeline import fuse
+    from imu import read_log
+
+    cfg = load_config(drive / "config.toml")
+    log = next(p for p in drive.glob("can.*"))
+    imu, _ = read_log(log, cfg.can, cfg.imu)
+    vision = pd.read_csv(run_dir / "vision.csv")
+    truth = pd.read_csv(drive / "truth.csv")
+    t0 = float(vision["t_s"].iloc[0])
+    lost = (vision["t_s"] >= t0 + t_loss_s) & (vision["t_s"] < t0 + t_loss_s + 5.0)
+    base = fuse(imu, vision, lever_arm_m=cfg.imu.position_m).fused
+    v = vision.copy()
+    v.loc[lost, "valid"] = False
+    f = fuse(imu, v, lever_arm_m=cfg.imu.position_m).fused
+    t = f["t_s"].to_numpy()
+    err = np.abs(f["roll_deg"].to_numpy() - interp_truth(truth, t)["roll_deg"].to_numpy())
+    err0 = np.abs(base["roll_deg"].to_numpy() - interp_truth(truth, t)["roll_deg"].to_numpy())
+    band = 2.0 * math.sqrt(np.nanmean(err0[t > t0 + 2.0] ** 2))
+    during = err[(t >= t0 + t_loss_s) & (t < t0 + t_loss_s + 5.0)]
+    back = t0 + t_loss_s + 5.0
+    after = (t >= back)
+    bad = np.flatnonzero(after & (err > band))
+    recover = (t[bad[-1]] - back) if len(bad) and t[bad[-1]] < back + 10.0 else 0.0
+    return float(np.nanmax(during)), float(recover)
+
+
+def filter_rate(drive: Path) -> float:
+    """IMU samples per second through the forward filter alone (median of 3)."""
+    from fusion.config import load_config
+    from fusion.pipeline import fuse
+    from imu import read_log
+
+    cfg = load_config(drive / "config.toml")
+    imu, _ = read_log(next(drive.glob("can.*")), cfg.can, cfg.imu)
+    vision = pd.read_csv(drive.parent / (drive.name + "-run") / "vision.csv")
+    rates = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        fuse(imu, vision, lever_arm_m=cfg.imu.position_m)
+        rates.append(len(imu) / (time.perf_counter() - t0))
+    return statistics.median(rates)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="only the 20 s drives")
+    args = ap.parse_args(argv)
+    names = QUICK if args.quick else DRIVES
+    rows, speed_rows = [], []
+    for name in names:
+        drive = cached_full_drive(name)
+        out = drive.parent / (drive.name + "-run")
+        wall, summ = run_cli(drive, out)
+        _, summ_s = run_cli(drive, drive.parent / (drive.name + "-run-smooth"), "--smooth")
+        acc = summ["rmse_deg"]
+        loss_max, recover = lane_loss(drive, out, t_loss_s=8.0)
+        rows.append((name, acc, summ_s["rmse_deg"]["fused"], summ["consistency"]["fraction_inside"],
+                     summ_s["consistency"]["fraction_inside"], loss_max, recover))
+        dur = summ["duration_s"]
+        tm = summ["timings_s"]
+        fixed = tm.get("start-up", 0.0) + tm.get("report", 0.0)
+        speed_rows.append((name, dur, wall, fixed, filter_rate(drive)))
+        shutil.rmtree(drive.parent / (drive.name + "-run-smooth"), ignore_errors=True)
+
+    print("RMSE against truth after 2 s [deg]   (bars of issue 5: roll/pitch 0.15, yaw 0.1, bank 0.3)")
+    head = f"{'drive':<26} {'source':<22} {'roll':>7} {'pitch':>7} {'yaw':>7} {'bank':>7}"
+    print(head)
+    print("-" * len(head))
+    for name, acc, sm, nees_f, nees_s, _, _ in rows:
+        for label, vals in (("fused (forward)", acc["fused"]), ("fused (smoothed)", sm), ("vision alone", acc.get("vision", {})),
+                            ("IMU - vision (2018)", acc.get("imu_minus_vision", {}))):
+            cells = " ".join(f"{vals[a]:7.3f}" if a in vals else f"{'':7}" for a in ("roll", "pitch", "yaw", "bank"))
+            print(f"{name:<26} {label:<22} {cells}")
+    print()
+    print(f"{'drive':<26} {'NEES in 95% band fwd':>22} {'smoothed':>10} {'lane loss: max roll err':>24} {'recovery':>10}")
+    for name, _, _, nees_f, nees_s, loss_max, recover in rows:
+        print(f"{name:<26} {100 * nees_f:21.1f}% {100 * nees_s:9.1f}% {loss_max:21.2f} deg {recover:8.2f} s")
+    print()
+    print(f"{'drive':<26} {'duration':>9} {'vifusion run':>13} {'fixed':>7} {'rest / duration':>16} {'filter alone':>16}")
+    for name, dur, wall, fixed, rate in speed_rows:
+        print(f"{name:<26} {dur:8.1f}s {wall:12.1f}s {fixed:6.1f}s {100 * (wall - fixed) / dur:15.1f}% "
+              f"{rate:11,.0f} /s")
+    print("(vifusion run: wall time of the whole command in a subprocess, 2 cores; fixed = start-up + report)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
