@@ -214,9 +214,13 @@ def configs(quick: bool):
         "default-lines-vp": EstimatorOptions(vp="lines"),
         "default-no-refine": EstimatorOptions(refine_iterations=0),
         "default-quadratic": EstimatorOptions(fit_degree=2),
+        "default-image-edges": EstimatorOptions(edge_domain="image"),
+        "default-2-iterations": EstimatorOptions(refine_iterations=2),
+        "default-dx15": EstimatorOptions(dx_m=0.15),
+        "default-dx20": EstimatorOptions(dx_m=0.2),
         "default-fine-bev": EstimatorOptions(dy_m=0.006, dx_m=0.05),
         "default-quadratic-fine": EstimatorOptions(fit_degree=2, dy_m=0.006, dx_m=0.05),
-        "default-full-range": EstimatorOptions(fit_range_m=500.0),
+        "default-20m": EstimatorOptions(fit_range_m=20.0),
     }
     if quick:
         out = {k: out[k] for k in ("default", "paper")}

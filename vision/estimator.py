@@ -43,6 +43,7 @@ import numpy as np
 from .camera import Camera, Mount, RoadMarkings
 from .errors import VisionError
 from .frames import R_CS_FROM_CP, R_from_rpy, Ry, euler_from_matrix, matrix_from_euler, roll_xyz_from_zyx, rpy_from_R
+from .edges import measure_in_image
 from .ipm import Bev, BevGrid, default_grid, ground_from_rays, undistortion_lookup
 from .lanemodel import LaneModel, fit_lane_model, lane_direction
 from .lanes import LaneOptions, Marker, detect_markers
@@ -80,6 +81,9 @@ class VisionEstimate:
         to the left (the road's centre line in the simulator's two- and three-line setups).
     line_spacing_m : float
         Distance between neighbouring lines used, m (mean).
+    line_offsets_m : tuple of float
+        Lateral positions of the used lines' centres relative to the vehicle origin at the
+        vehicle, m, positive left, left to right.
     camera_xyz_rad : tuple
         ``(phi1, theta1, psi1)``: the camera's XYZ roll, pitch, yaw relative to the road.
     vp_px : tuple
@@ -110,6 +114,7 @@ class VisionEstimate:
     curvature_1_m: float = math.nan
     lateral_offset_m: float = math.nan
     line_spacing_m: float = math.nan
+    line_offsets_m: tuple[float, ...] = ()
     camera_xyz_rad: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     vp_px: tuple[float, float] = (math.nan, math.nan)
     n_lines: int = 0
@@ -147,7 +152,14 @@ class DebugInfo:
     R_o_from_cp: np.ndarray | None = None
     height_m: float = math.nan
     image_lines: list = field(default_factory=list)
+    image_edges: list | None = None
+    model: object = None
 
+
+#: The refinement stops when a pass moves no angle by more than this (rad, 0.0006 deg).
+_CONVERGED_RAD = 1e-5
+#: Below this last step the lane model of the last pass is kept for the outputs (rad).
+_REUSE_RAD = 1e-4
 
 # ---------------------------------------------------------------------------------------------
 # Attitude conversions (eq. (22))
@@ -222,7 +234,8 @@ class _Edge:
     rays: np.ndarray          # (n, 3) in cp
     line: int                 # index into the used lines, left to right
     side: int                 # 0 left edge (larger Y), 1 right edge
-    n_eff: float              # independent samples (image rows spanned)
+    from_image: bool          # cut in the image (each point independent) or a BEV row
+    cut_step: np.ndarray | None = None   # (n, 3): ray change for one pixel along the cut
 
 
 # ---------------------------------------------------------------------------------------------
@@ -247,12 +260,21 @@ class Estimator:
         self.camera, self.mount, self.road, self.options = camera, mount, road, options
         o = options
         mw = min(road.marker_widths_m)
-        g = default_grid(camera, mw, half_width_m=o.half_width_m, dy_m=o.dy_m, dx_m=o.dx_m,
+        coarse = o.edge_domain == "image"
+        dx = o.dx_m if o.dx_m is not None else (0.2 if coarse else 0.1)
+        g = default_grid(camera, mw, half_width_m=o.half_width_m, dy_m=o.dy_m, dx_m=dx,
                          height_m=mount.height_m, tilt_rad=mount.tilt_rad)
+        if coarse and o.dy_m is None:
+            g = replace(g, dy_m=float(np.clip(2.0 * g.dy_m, 0.025, 0.05)))
+        x_max = g.x_max_m
+        if o.refine_iterations > 0:
+            # The refinement leaves points beyond fit_range_m out: no need to warp them.
+            x_max = min(x_max, o.fit_range_m + 1.0)
         self.grid = BevGrid(o.x_min_m if o.x_min_m is not None else g.x_min_m,
-                            o.x_max_m if o.x_max_m is not None else g.x_max_m,
+                            o.x_max_m if o.x_max_m is not None else max(x_max, g.x_min_m + 5.0),
                             g.y_min_m, g.y_max_m, g.dx_m, g.dy_m)
-        self.lane_options = LaneOptions(edges=o.edges, fit_degree=o.fit_degree)
+        # In the image domain the BEV only tracks the markers: half-level crossings suffice there.
+        self.lane_options = LaneOptions(edges=o.edges if not coarse else "subpixel", fit_degree=o.fit_degree)
         self.lut = _undistort_lut(camera)
         self.last: VisionEstimate | None = None
 
@@ -281,7 +303,8 @@ class Estimator:
 
                 est = damon_estimate(self, gray, seed_rpy, keep_debug)
             else:
-                est = self._alrazouk(gray, seed_rpy, keep_debug)
+                est = self._alrazouk(gray, seed_rpy, keep_debug,
+                                     seed if isinstance(seed, VisionEstimate) and seed.valid else None)
         except (VisionError, np.linalg.LinAlgError, FloatingPointError, ValueError) as e:
             est = VisionEstimate.invalid(f"{type(e).__name__}: {e}", self.options.method)
         est = _sanitise(est)
@@ -293,7 +316,7 @@ class Estimator:
 
     def bev_at(self, gray: np.ndarray, R_o_from_cp: np.ndarray, height_m: float, grid: BevGrid | None = None):
         bev = Bev(grid or self.grid, self.camera, R_o_from_cp, height_m)
-        img = bev.warp(gray, self.lut).astype(np.float32)
+        img = bev.warp(gray, self.lut)
         lo, hi = bev.valid_columns()
         return bev, img, lo, hi
 
@@ -310,7 +333,7 @@ class Estimator:
         if len(markers) < 2:
             return [], []
         u0 = bev.u0
-        uc = np.array([float(np.polyval(0.5 * (m.fit_left + m.fit_right), m.v_near)) for m in markers])
+        uc = np.array([float(np.mean(m.u_at(m.v_near))) for m in markers])
         left = [i for i in range(len(markers)) if uc[i] < u0]
         right = [i for i in range(len(markers)) if uc[i] >= u0]
         if not left or not right:
@@ -354,8 +377,15 @@ class Estimator:
         off = _camera_offset(R_o_from_v, self.mount)
         return float(off[2]), R_o_from_v
 
-    def _alrazouk(self, gray, seed_rpy, keep_debug) -> VisionEstimate:
-        result = self._run(gray, self._initial_pose(seed_rpy), keep_debug)
+    def _alrazouk(self, gray, seed_rpy, keep_debug, seed_est: "VisionEstimate | None" = None) -> VisionEstimate:
+        pose = self._initial_pose(seed_rpy)
+        narrow = self._seeded_grid(seed_est, pose)
+        if narrow is not None:
+            # Only the part of the BEV around the seed's lines; the whole width if a line is lost.
+            result = self._run(gray, pose, keep_debug, narrow)
+            if result.valid and result.n_lines >= seed_est.n_lines:
+                return result
+        result = self._run(gray, pose, keep_debug)
         if not result.valid and self.options.ipm_pose == "seed":
             # The seed (or the mount's pose) put lines outside the BEV: search for them.
             pose = self._coarse_pose(gray)
@@ -364,6 +394,24 @@ class Estimator:
                 if again.valid:
                     return replace(again, warps=again.warps + result.warps)
         return result
+
+    def _seeded_grid(self, seed: "VisionEstimate | None", pose) -> BevGrid | None:
+        """The BEV grid narrowed to the seed's lines (1.5 m beyond the outer ones, widened by
+        the curvature's drift over the range), or None without a seed that knows its lines."""
+        o = self.options
+        if seed is None or not seed.line_offsets_m or o.ipm_pose != "seed" or not o.narrow_bev:
+            return None
+        g = self.grid
+        _, R_o_from_v = self.height_of(*pose)
+        cam_y = float(_camera_offset(R_o_from_v, self.mount)[1])
+        ys = np.asarray(seed.line_offsets_m) - cam_y
+        drift = 0.5 * seed.curvature_1_m * g.x_max_m**2
+        lo = float(ys.min()) + min(0.0, drift) - 1.5
+        hi = float(ys.max()) + max(0.0, drift) + 1.5
+        lo, hi = max(lo, g.y_min_m), min(hi, g.y_max_m)
+        if hi - lo < 3.0 or (hi - lo) > 0.9 * (g.y_max_m - g.y_min_m):
+            return None
+        return replace(g, y_min_m=lo, y_max_m=hi)
 
     def _run(self, gray, pose, keep_debug, grid: BevGrid | None = None) -> VisionEstimate:
         """BEV at ``pose``, markers, solve; warp again at the new pose when it moved far."""
@@ -375,13 +423,21 @@ class Estimator:
             H, _ = self.height_of(*pose)
             bev, img, markers = self.markers_at(gray, _R_o_from_cp(*pose), H, grid=grid)
             warps += 1
+            image_edges = None
+            if o.edge_domain == "image" and markers:
+                measured = measure_in_image(gray, markers, bev, self.camera, o.edges)
+                markers = [m for m, e in zip(markers, measured) if e is not None]
+                image_edges = [e for e in measured if e is not None]
             lines, idx = self.select_lines(bev, markers, want_three)
             dbg = DebugInfo(bev_image=img, bev=bev, markers=markers, used=idx) if keep_debug else None
             if len(lines) < 2:
                 n = len(markers)
                 return VisionEstimate.invalid(f"{n} lane line{'' if n == 1 else 's'} found, need 2", o.method,
                                               debug=dbg, warps=warps)
-            result = self._solve(bev, lines, pose, H, dbg, warps)
+            used_edges = [image_edges[i] for i in idx] if image_edges is not None else None
+            if dbg is not None:
+                dbg.image_edges = used_edges
+            result = self._solve(bev, lines, pose, H, dbg, warps, used_edges)
             if not result.valid:
                 return result
             new = result.camera_xyz_rad
@@ -407,7 +463,8 @@ class Estimator:
                 return res.camera_xyz_rad
         return None
 
-    def _solve(self, bev: Bev, lines: list[Marker], pose0, H0: float, dbg, warps: int) -> VisionEstimate:
+    def _solve(self, bev: Bev, lines: list[Marker], pose0, H0: float, dbg, warps: int,
+               image_edges=None) -> VisionEstimate:
         o, cam = self.options, self.camera
         n_lines = len(lines)
         use_eq10 = n_lines == 3 and o.roll_equation in ("auto", "eq10")
@@ -420,9 +477,19 @@ class Estimator:
         # Edge points -> rays in cp.
         edges: list[_Edge] = []
         for j, m in enumerate(lines):
+            if image_edges is not None:
+                ie = image_edges[j]
+                for side, uv in ((0, ie.left), (1, ie.right)):
+                    n_ = cam.normalized(uv)
+                    uv1 = uv.copy()
+                    uv1[:, 0 if ie.axis == 0 else 1] += 1.0   # one pixel along the cut
+                    n1 = cam.normalized(uv1)
+                    step = np.concatenate([n1 - n_, np.zeros((n_.shape[0], 1))], -1)
+                    edges.append(_Edge(np.concatenate([n_, np.ones((n_.shape[0], 1))], -1), j, side, True, step))
+                continue
             k = m.inliers
             for side, u in ((0, m.u_left[k]), (1, m.u_right[k])):
-                edges.append(_Edge(bev.rays_of_bev(u, m.v[k]), j, side, 0.0))
+                edges.append(_Edge(bev.rays_of_bev(u, m.v[k]), j, side, False))
         n_points = int(sum(e.rays.shape[0] for e in edges))
         rms_px = float(np.sqrt(np.mean([m.rms_left**2 + m.rms_right**2 for m in lines]) / 2.0))
         shape_deg = o.fit_degree
@@ -449,11 +516,13 @@ class Estimator:
             if x_rows is None:
                 return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
         else:
+            step = math.inf
             for it in range(o.refine_iterations):
                 iterations = it + 1
                 H, _ = self.height_of(phi, theta, psi)
                 R = _R_o_from_cp(phi, theta, psi)
-                model = self._model(edges, R, H, shape_deg, bev.grid)
+                model = self._model(edges, R, H, shape_deg, bev.grid, select=it == 0)
+                shape_deg = model.c.size + 1       # the degree chosen in the first pass is kept
                 dmodel = model if o.vp == "tangent" else self._model(edges, R, H, 1, bev.grid)
                 d = lane_direction(dmodel, H)
                 if d is None:
@@ -466,10 +535,12 @@ class Estimator:
                 delta = self._solve_roll(alphas, coef)
                 step = max(abs(delta), abs(psi_new - psi), abs(theta_new - theta))
                 phi, theta, psi = phi - delta, theta_new, psi_new
-                if step < 1e-7:
+                if step < _CONVERGED_RAD:
                     break
-            H, _ = self.height_of(phi, theta, psi)
-            model = self._model(edges, _R_o_from_cp(phi, theta, psi), H, shape_deg, bev.grid)
+            if step >= _REUSE_RAD:
+                # The last pass moved the pose: describe the lanes in the final frame.
+                H, _ = self.height_of(phi, theta, psi)
+                model = self._model(edges, _R_o_from_cp(phi, theta, psi), H, shape_deg, bev.grid, select=False)
             x_rows = self._cross_x(model)
             if x_rows is None:
                 return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
@@ -492,7 +563,9 @@ class Estimator:
         s_roll, s_pitch, s_yaw = _vehicle_sigmas(phi, theta, psi, s_phi, s_theta, s_psi, self.mount.tilt_rad)
         # Curvature, lateral offset, spacing at the contact point, from the outermost lines used.
         x_c = -float(cam_off[0])
-        centres = [0.5 * float(model.y(2 * j, x_c) + model.y(2 * j + 1, x_c)) for j in (0, n_lines - 1)]
+        all_centres = [0.5 * float(model.y(2 * j, x_c) + model.y(2 * j + 1, x_c)) for j in range(n_lines)]
+        centres = [all_centres[0], all_centres[-1]]
+        offsets = tuple(c + float(cam_off[1]) for c in all_centres)
         curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if shape_deg >= 2 else 0.0
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
@@ -513,7 +586,7 @@ class Estimator:
             valid, reason = False, "attitude out of range (roll 65, pitch 25, yaw 45 deg)"
         return VisionEstimate(
             roll, pitch, yaw, s_roll, s_pitch, s_yaw, valid,
-            curvature_1_m=curvature, lateral_offset_m=lateral, line_spacing_m=spacing,
+            curvature_1_m=curvature, lateral_offset_m=lateral, line_spacing_m=spacing, line_offsets_m=offsets,
             camera_xyz_rad=(float(phi), float(theta), float(psi)), vp_px=(float(vp[0]), float(vp[1])),
             n_lines=n_lines, roll_equation="eq10" if use_eq10 else "eq8", edge_rms_px=rms_px,
             n_edge_points=n_points, iterations=iterations, warps=warps, roll_bound_eq14_rad=bound,
@@ -549,17 +622,32 @@ class Estimator:
         p = np.stack([bev.u0 - al, bev.u0 - ar, bev.u0 - bl, bev.u0 - br], axis=-1)
         return np.arctan2(p, f_vx), coefficients_eq8(ratio)
 
-    def _model(self, edges: list[_Edge], R, H, deg, grid: BevGrid) -> LaneModel:
-        xs, ys = [], []
-        for e in edges:
-            x, y = ground_from_rays(e.rays, R, H)
-            ok = np.isfinite(x) & (x > 0.5) & (x < self.options.fit_range_m)
+    def _model(self, edges: list[_Edge], R, H, deg, grid: BevGrid, select: bool = True) -> LaneModel:
+        rays = np.concatenate([e.rays for e in edges])
+        x, y = ground_from_rays(rays, R, H)
+        from_image = edges[0].from_image
+        if from_image:
+            # Metres of lateral position per pixel along each cut (the measurement's direction).
+            d = np.concatenate([e.cut_step for e in edges])
+            _, y2 = ground_from_rays(rays + d, R, H)
+            q_all = np.abs(y2 - y)
+        bounds = np.cumsum([0] + [e.rays.shape[0] for e in edges])
+        xs, ys, qs = [], [], []
+        for k in range(len(edges)):
+            sl = slice(bounds[k], bounds[k + 1])
+            xk, yk = x[sl], y[sl]
+            ok = np.isfinite(xk) & (xk > 0.5) & (xk < self.options.fit_range_m)
             if ok.sum() < 3:
                 raise VisionError("an edge lies above the horizon at this pose")
-            xs.append(x[ok])
-            ys.append(y[ok])
-        return fit_lane_model(xs, ys, [e.line for e in edges], [e.side for e in edges], deg,
-                              self.camera.fy * H * grid.dx_m)
+            xs.append(xk[ok])
+            ys.append(yk[ok])
+            if from_image:
+                qs.append(q_all[sl][ok])
+        # BEV rows far away re-sample image rows (f_y H / x^2 rows per metre against 1 / dx);
+        # cuts in the image are one per image row or column.
+        independent = math.inf if from_image else self.camera.fy * H * grid.dx_m
+        return fit_lane_model(xs, ys, [e.line for e in edges], [e.side for e in edges], deg, independent,
+                              qs=qs if from_image else None, select=select)
 
     def _cross_x(self, model: LaneModel):
         """Cross-sections along the road: one at the farthest of the edges' near ends (the
@@ -652,15 +740,12 @@ class Estimator:
 
 def _vehicle_sigmas(phi, theta, psi, s_phi, s_theta, s_psi, tilt):
     """Propagate the camera's XYZ sigmas to the vehicle's ZYX angles (central differences)."""
-    x0 = np.array([phi, theta, psi])
-    J = np.empty((3, 3))
     e = 1e-6
-    for k in range(3):
-        d = np.zeros(3)
-        d[k] = e
-        a, _ = vehicle_from_camera_xyz(*(x0 + d), tilt)
-        b, _ = vehicle_from_camera_xyz(*(x0 - d), tilt)
-        J[:, k] = (np.array(a) - np.array(b)) / (2 * e)
+    D = np.concatenate([np.eye(3), -np.eye(3)]) * e + np.array([phi, theta, psi])
+    R = matrix_from_euler("xyz", D[:, 0], D[:, 1], D[:, 2]) @ Ry(tilt).T
+    roll, pitch, yaw = rpy_from_R(R)
+    A = np.stack([roll, pitch, yaw], axis=-1)            # (6, 3)
+    J = ((A[:3] - A[3:]) / (2 * e)).T                    # d(vehicle) / d(camera)
     cov = J @ np.diag([s_phi**2, s_theta**2, s_psi**2]) @ J.T
     return tuple(float(math.sqrt(max(cov[i, i], 0.0))) for i in range(3))
 

@@ -14,16 +14,26 @@ residual yaw tilts them all: the tangents at the vehicle, ``(a_j, b_j)``, give t
 Sharing the shape lets the dashed centre line, seen in short pieces, borrow the curvature of
 the solid lines instead of extrapolating its own.
 
-Weights: a BEV row far away re-samples the same image row many times and the lateral error of an
-image pixel grows with the distance, so each point ``i`` gets the weight
-``1 / (x_i^2 max(1, x_i^2 / (f_y H dx)))`` (``f_y H / x^2`` image rows per metre of road,
-``1 / dx`` BEV rows per metre): the far points count as the independent samples they are.
+The covariance is inflated by ``(1 + rho) / (1 - rho)``, ``rho`` the lag-1 autocorrelation of
+the weighted residuals along the edges (road texture and interpolation make neighbours share
+their errors), so that the significance test of the shape and the reported sigmas hold.
+
+Weights: each point gets ``indep(x) / var(x)``. ``indep = min(1, f_y H dx / x^2)``: a BEV row
+far away re-samples an image row already used (``f_y H / x^2`` image rows per metre against
+``1 / dx`` BEV rows). ``var = s_b^2 + s_i^2 q^2``: a floor constant in metres (the BEV's sub-pixel
+precision, the road texture) and a part proportional to ``q``, the metres of lateral position
+per unit of measurement error (``q = x`` for BEV rows; for cuts in the image, the metres per
+pixel along the cut), fitted to the squared residuals of a first pass (feasible generalised
+least squares): on the rendered drives BEV residuals are nearly constant in metres up to 20 m,
+so ``1 / x^2`` weights would throw most of the data away. Points beyond 4 sigma of that model
+after the first pass get no weight in the second.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from .errors import VisionError
@@ -115,24 +125,25 @@ class LaneModel:
 
 
 def fit_lane_model(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape_degree: int,
-                   rows_per_m: float, *, select: bool = True, t_min: float = 3.0) -> LaneModel:
+                   rows_per_m: float, *, select: bool = True, t_min: float = 3.0,
+                   qs: list[np.ndarray] | None = None) -> LaneModel:
     """Weighted least squares of the joint model; with ``select``, the highest shape term is
     kept only when it is significant (``|c| > t_min sigma_c``), else the degree is lowered.
 
     A cubic term follows a clothoid's changing curvature, but on a straight or circular road it
     only adds variance to the tangent at the vehicle (model selection by a t-test).
     """
-    m = _fit(xs, ys, edge_line, edge_side, shape_degree, rows_per_m)
+    m = _fit(xs, ys, edge_line, edge_side, shape_degree, rows_per_m, qs)
     while select and m.c.size >= 2:
         i = m.a.size + m.b.size + m.c.size - 1
         if abs(m.c[-1]) > t_min * np.sqrt(max(m.cov[i, i], 0.0)):
             break
-        m = _fit(xs, ys, edge_line, edge_side, m.c.size, rows_per_m)
+        m = _fit(xs, ys, edge_line, edge_side, m.c.size, rows_per_m, qs)
     return m
 
 
 def _fit(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape_degree: int,
-         rows_per_m: float) -> LaneModel:
+         rows_per_m: float, qs: list[np.ndarray] | None = None) -> LaneModel:
     """Weighted least squares of the joint model (module docstring).
 
     Parameters
@@ -144,77 +155,197 @@ def _fit(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape
     shape_degree : int
         Highest power of the common shape (1: straight lines, 2: + x^2, 3: + x^3).
     rows_per_m : float
-        ``f_y H``: image rows per metre of road at 1 m (``f_y H / x^2`` at ``x``) over BEV rows per
-        metre, i.e. ``f_y H dx``: where samples stop being independent.
+        ``f_y H dx``: where samples stop being independent (``x^2`` beyond it); ``inf`` for
+        points that are all independent.
+    qs : list of arrays, optional
+        Per point, the metres of lateral position per unit of measurement error (for cuts in the
+        image, metres per pixel along the cut); the noise model is ``s_b^2 + s_i^2 q^2``.
+        Default ``q = x``.
     """
     K = len(xs)
-    edge_line = np.asarray(edge_line, int)
+    edge_line = np.asarray(edge_line, np.int64)
     J = int(edge_line.max()) + 1
     nc = max(0, shape_degree - 1)
-    x = np.concatenate(xs)
-    y = np.concatenate(ys)
+    x = np.concatenate(xs).astype(np.float64)
+    y = np.concatenate(ys).astype(np.float64)
     if x.size < K + J + nc + 2:
         raise VisionError("too few edge points for the lane model")
-    k_of = np.concatenate([np.full(len(xi), k) for k, xi in enumerate(xs)])
-    X = np.zeros((x.size, K + J + nc))
-    X[np.arange(x.size), k_of] = 1.0
-    X[np.arange(x.size), K + edge_line[k_of]] = x
-    shape_cols = np.stack([(x / _XS) ** (i + 2) for i in range(nc)], axis=1) if nc else np.zeros((x.size, 0))
-    X[:, K + J:] = shape_cols
-    x2 = np.maximum(x * x, 1.0)
-    w = 1.0 / (x2 * np.maximum(1.0, x2 / max(rows_per_m, 1e-9)))
-    w = w / w.mean()
-    for concentric in (False, True):
-        if concentric:
-            # Lines are concentric: a line offset by a from the camera has curvature
-            # kappa0 / (1 - kappa0 a); scale its shape columns accordingly (second pass).
-            kappa0 = 2.0 * p[K + J] / _XS**2 if nc else 0.0
-            a_line = np.array([p[:K][edge_line == j].mean() for j in range(J)])
-            scale = 1.0 / np.clip(1.0 - kappa0 * a_line, 0.5, 2.0)
-            if nc == 0 or np.all(np.abs(scale - 1.0) < 1e-6):
-                break
-            X[:, K + J:] = shape_cols * scale[edge_line[k_of]][:, None]
-        Xw = X * w[:, None]
-        A = X.T @ Xw
-        try:
-            Ai = np.linalg.inv(A)
-        except np.linalg.LinAlgError:
-            raise VisionError("lane model is singular (an edge without points?)") from None
-        p = Ai @ (Xw.T @ y)
-    line_scale = scale if nc and concentric else np.ones(J)
-    r = y - X @ p
-    dof = max(1, x.size - p.size)
-    s2 = float((w * r * r).sum() / dof)
-    cov = Ai * s2
+    counts = np.array([len(xi) for xi in xs], np.int64)
+    k_of = np.repeat(np.arange(K, dtype=np.int64), counts)
+    q = x if qs is None else np.concatenate(qs).astype(np.float64)
+    ok, p, cov, s2, scale = _fit_core(x, y, q, k_of, edge_line, K, J, nc, float(min(rows_per_m, 1e300)))
+    if not ok:
+        raise VisionError("lane model is singular (an edge without points?)")
     x_min = np.array([float(xi.min()) for xi in xs])
     x_max = np.array([float(xi.max()) for xi in xs])
-    return LaneModel(p[:K], p[K:K + J], p[K + J:], cov, edge_line, np.asarray(edge_side, int), x_min, x_max,
-                     float(np.sqrt(s2)), int(x.size), line_scale)
+    return LaneModel(p[:K], p[K:K + J], p[K + J:], cov, edge_line, np.asarray(edge_side, int), x_min,
+                     x_max, float(np.sqrt(s2)), int(x.size), scale)
 
 
-def lane_direction(model: LaneModel, height_m: float, x0: float = 0.0, lines=None) -> np.ndarray | None:
-    """Common direction of the lane lines at ``x0`` in the current road frame (unit, forward).
+@nb.njit(cache=True)
+def _fit_core(x, y, q, k_of, edge_line, K, J, nc, rows_per_m):  # pragma: no cover (numba)
+    """Two passes of weighted normal equations; returns ``(ok, p, cov, s2, line_scale)``.
 
-    Each line's tangent at ``x0`` and the optical centre span a plane with normal
-    ``n_j = (x0, y_j, -H) x (1, y'_j, 0)``; the lane direction is orthogonal to all of them
-    (weighted by the inverse 1-sigma of the line's slope; least squares for three lines).
-    Returns None when the normals do not determine it.
+    Pass 1: weights ``indep(x)``. Pass 2: ``indep(x) / var(x)`` with ``var = s_b^2 + s_i^2 x^2``
+    fitted to pass 1's squared residuals, and the shape columns of line ``j`` scaled by
+    ``1 / (1 - kappa0 a_j)`` (concentric lines). Slopes and the shape use ``t = x / 10``.
+    """
+    n = x.shape[0]
+    P = K + J + nc
+    t = x / 10.0
+    indep = np.empty(n)
+    for i in range(n):
+        indep[i] = 1.0 / max(1.0, x[i] * x[i] / max(rows_per_m, 1e-9))
+    w = indep.copy()
+    scale = np.ones(J)
+    p = np.zeros(P)
+    Ai = np.zeros((P, P))
+    for npass in range(2):
+        if npass == 1:
+            # residuals of pass 1 -> variance model and concentric scale
+            g00 = 0.0
+            g01 = 0.0
+            g11 = 0.0
+            b0 = 0.0
+            b1 = 0.0
+            mr2 = 0.0
+            for i in range(n):
+                j = edge_line[k_of[i]]
+                pred = p[k_of[i]] + p[K + j] * t[i]
+                tp = t[i] * t[i]
+                for c in range(nc):
+                    pred += scale[j] * p[K + J + c] * tp
+                    tp *= t[i]
+                r = y[i] - pred
+                g0 = indep[i]
+                g1 = indep[i] * q[i] * q[i]
+                rr = indep[i] * r * r
+                g00 += g0 * g0
+                g01 += g0 * g1
+                g11 += g1 * g1
+                b0 += g0 * rr
+                b1 += g1 * rr
+                mr2 += r * r
+            det = g00 * g11 - g01 * g01
+            sb = (g11 * b0 - g01 * b1) / det if det != 0.0 else b0 / max(g00, 1e-300)
+            si = (g00 * b1 - g01 * b0) / det if det != 0.0 else 0.0
+            floor = 1e-8 + 1e-3 * mr2 / n
+            for i in range(n):
+                var = max(sb, floor) + max(si, 0.0) * q[i] * q[i]
+                w[i] = indep[i] / var
+            # Outliers (beyond 4 sigma of the noise model) get no weight in the second pass.
+            for i in range(n):
+                j = edge_line[k_of[i]]
+                pred = p[k_of[i]] + p[K + j] * t[i]
+                tp = t[i] * t[i]
+                for c in range(nc):
+                    pred += scale[j] * p[K + J + c] * tp
+                    tp *= t[i]
+                r = y[i] - pred
+                if r * r * w[i] > 16.0 * indep[i]:
+                    w[i] = 0.0
+            if nc > 0:
+                kappa0 = 2.0 * p[K + J] / 100.0
+                for j in range(J):
+                    sa = 0.0
+                    ca = 0
+                    for k in range(K):
+                        if edge_line[k] == j:
+                            sa += p[k]
+                            ca += 1
+                    a_line = sa / max(ca, 1)
+                    scale[j] = 1.0 / min(max(1.0 - kappa0 * a_line, 0.5), 2.0)
+        wm = w.mean()
+        for i in range(n):
+            w[i] /= wm
+        A = np.zeros((P, P))
+        rhs = np.zeros(P)
+        col = np.zeros(P)
+        for i in range(n):
+            k = k_of[i]
+            j = edge_line[k]
+            # the non-zero columns of row i: a_k, b_j, shape
+            idx0 = k
+            idx1 = K + j
+            wi = w[i]
+            yi = y[i]
+            col[0] = 1.0
+            col[1] = t[i]
+            tp = t[i] * t[i]
+            for c in range(nc):
+                col[2 + c] = scale[j] * tp
+                tp *= t[i]
+            m = 2 + nc
+            for u in range(m):
+                iu = idx0 if u == 0 else (idx1 if u == 1 else K + J + u - 2)
+                wu = wi * col[u]
+                rhs[iu] += wu * yi
+                for v in range(m):
+                    iv = idx0 if v == 0 else (idx1 if v == 1 else K + J + v - 2)
+                    A[iu, iv] += wu * col[v]
+        if np.abs(np.linalg.det(A)) < 1e-300:
+            return False, p, Ai, 0.0, scale
+        Ai = np.linalg.inv(A)
+        p = Ai @ rhs
+    # residuals, variance, lag-1 autocorrelation along each edge
+    s2 = 0.0
+    num = 0.0
+    den = 0.0
+    prev_rw = 0.0
+    for i in range(n):
+        j = edge_line[k_of[i]]
+        pred = p[k_of[i]] + p[K + j] * t[i]
+        tp = t[i] * t[i]
+        for c in range(nc):
+            pred += scale[j] * p[K + J + c] * tp
+            tp *= t[i]
+        r = y[i] - pred
+        s2 += w[i] * r * r
+        rw = r * np.sqrt(w[i])
+        den += rw * rw
+        if i > 0 and k_of[i] == k_of[i - 1]:
+            num += rw * prev_rw
+        prev_rw = rw
+    s2 /= max(1, n - P)
+    rho = min(max(num / den, 0.0), 0.98) if den > 0 else 0.0
+    cov = Ai * s2 * (1.0 + rho) / (1.0 - rho)
+    # slopes were fitted per t = x / 10: back to per metre
+    for j in range(J):
+        p[K + j] /= 10.0
+        for q in range(P):
+            cov[K + j, q] /= 10.0
+            cov[q, K + j] /= 10.0
+    return True, p, cov, s2, scale
+
+
+def lane_direction(model: LaneModel, height_m: float, lines=None) -> np.ndarray | None:
+    """Common direction of the lane lines at the vehicle (``x = 0``) in the current road frame
+    (unit, forward).
+
+    Each line's tangent at ``x = 0`` (through ``(0, y_j, -H)``, direction ``(1, y'_j, 0)``) and the
+    optical centre span a plane with normal ``n_j = (H y'_j, -H, -y_j)``; the lane direction is
+    orthogonal to all of them (weighted by the inverse 1-sigma of the line's slope; least squares
+    for three lines). Returns None when the normals do not determine it.
     """
     J = model.n_lines
     lines = range(J) if lines is None else lines
     rows = []
     for j in lines:
-        ks = np.flatnonzero(model.edge_line == j)
-        yj = float(np.mean([model.y(k, x0) for k in ks]))
-        bj = float(model.slope(j, x0))
-        n = np.cross(np.array([x0, yj, -height_m]), np.array([1.0, bj, 0.0]))
-        n /= np.linalg.norm(n)
-        rows.append(n / max(model.sigma_b(j), 1e-9))
-    N = np.asarray(rows)
-    if N.shape[0] < 2:
+        yj = float(model.a[model.edge_line == j].mean())     # the shape is 0 at x = 0
+        bj = float(model.b[j])                                # and so is its slope
+        n = np.array([height_m * bj, -height_m, -yj])
+        rows.append(n / (np.sqrt(n @ n) * max(model.sigma_b(j), 1e-9)))
+    if len(rows) < 2:
         return None
-    _, _, vt = np.linalg.svd(N)
-    d = vt[-1]
+    if len(rows) == 2:
+        d = np.cross(rows[0], rows[1])
+        nd = np.sqrt(d @ d)
+        if nd == 0:
+            return None
+        d = d / nd
+    else:
+        _, _, vt = np.linalg.svd(np.asarray(rows))
+        d = vt[-1]
     if d[0] < 0:
         d = -d
     if not np.all(np.isfinite(d)) or d[0] < 0.5:

@@ -35,6 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import cv2
+import numba as nb
 import numpy as np
 
 __all__ = ["Marker", "LaneOptions", "detect_markers", "marker_response"]
@@ -82,8 +83,9 @@ class Marker:
     """One painted line found in the BEV, with both edges on the rows it covers.
 
     ``v`` are BEV rows; ``u_left`` / ``u_right`` the sub-pixel columns of the edges at the larger
-    and smaller road ``Y``; ``fit_left`` / ``fit_right`` polynomial coefficients of ``u(v)``
-    (highest power first, ``numpy.polyval``), ``rms_left`` / ``rms_right`` their residuals, px.
+    and smaller road ``Y``; ``fit_left`` / ``fit_right`` polynomial coefficients of ``u`` in
+    ``(v - v0) / 100`` (highest power first, ``numpy.polyval``; use :meth:`u_at`),
+    ``rms_left`` / ``rms_right`` their residuals, px.
     ``inliers`` marks the rows kept by the fits.
     """
 
@@ -96,6 +98,7 @@ class Marker:
     rms_left: float = np.nan
     rms_right: float = np.nan
     inliers: np.ndarray = field(default=None)  # type: ignore[assignment]
+    v0: float = 0.0    # the fits are polynomials of (v - v0) / 100
 
     @property
     def u_center(self) -> np.ndarray:
@@ -112,33 +115,59 @@ class Marker:
 
     def u_at(self, v) -> tuple[np.ndarray, np.ndarray]:
         """Fitted edge columns at rows ``v``."""
-        return np.polyval(self.fit_left, v), np.polyval(self.fit_right, v)
+        x = (np.asarray(v, float) - self.v0) * 0.01
+        return np.polyval(self.fit_left, x), np.polyval(self.fit_right, x)
 
 
 def marker_response(bev: np.ndarray, width_px: int) -> np.ndarray:
-    """Dark-bright-dark response ``box(u) - max(box(u - w), box(u + w))`` along rows, float32."""
+    """Dark-bright-dark response ``box(u) - max(box(u - w), box(u + w))`` along rows, in grey
+    levels x ``w`` (box sums, int16; 0 where the neighbours fall outside the row).
+
+    ``box`` sums ``w`` pixels centred on ``u``: a bright stripe ``w`` wide on a darker road
+    answers with ``w`` times its contrast, a single step (the verge) with nothing.
+    """
     w = max(1, int(width_px))
-    b = cv2.blur(bev, (w, 1), borderType=cv2.BORDER_REPLICATE)
+    b = cv2.boxFilter(bev, cv2.CV_16S, (w, 1), normalize=False, borderType=cv2.BORDER_REPLICATE)
     r = np.zeros_like(b)
     if b.shape[1] > 2 * w:
         r[:, w:-w] = b[:, w:-w] - np.maximum(b[:, :-2 * w], b[:, 2 * w:])
     return r
 
 
-def _threshold(resp: np.ndarray, opts: LaneOptions) -> float:
-    sample = resp[::3, ::3].ravel()
+@nb.njit(cache=True)
+def _binarize(resp, thr, lo, hi, margin):  # pragma: no cover (numba)
+    """``resp > thr`` on the part of each row at least ``margin`` px inside the image's footprint
+    (the black fill outside makes false edges)."""
+    H, W = resp.shape
+    out = np.zeros((H, W), np.uint8)
+    for v in range(H):
+        a = max(0, int(np.ceil(lo[v] + margin)))
+        b = min(W - 1, int(np.floor(hi[v] - margin)))
+        for u in range(a, b + 1):
+            if resp[v, u] > thr:
+                out[v, u] = 1
+    return out
+
+
+def _threshold(resp: np.ndarray, width: int, lo, hi, margin: float, opts: LaneOptions) -> float:
+    """Threshold (response units) from every third row and column inside the image's footprint:
+    ``rel_threshold`` of the strong responses (99.5th percentile), at least ``min_contrast``."""
+    sub = resp[::3, ::3]
+    cols = np.arange(0, resp.shape[1], 3)[None, :]
+    inside = (cols >= (lo[::3] + margin)[:, None]) & (cols <= (hi[::3] - margin)[:, None])
+    sample = sub[inside]
     k = max(0, int(0.995 * sample.size) - 1)
     high = float(np.partition(sample, k)[k]) if sample.size else 0.0
-    return max(opts.min_contrast, opts.rel_threshold * high)
+    return max(opts.min_contrast * width, opts.rel_threshold * high)
 
 
 def _remove_small_blobs(binary: np.ndarray, min_rows: int) -> np.ndarray:
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
-    if n <= 1:
+    """Keep only pixels on vertical runs of at least ``min_rows`` rows (an opening with a
+    vertical line): removes blobs shorter than that along the road, keeps lines and dashes."""
+    if min_rows <= 1:
         return binary
-    keep = stats[:, cv2.CC_STAT_HEIGHT] >= min_rows
-    keep[0] = False
-    return keep[labels].astype(np.uint8)
+    kernel = np.ones((int(min_rows), 1), np.uint8)
+    return cv2.morphologyEx(binary, cv2.MORPH_OPEN, kernel)
 
 
 def _line_starts(binary: np.ndarray, min_count: int, min_gap_px: int) -> list[int]:
@@ -188,163 +217,170 @@ def _track(binary: np.ndarray, start_col: int, opts_px: dict) -> tuple[np.ndarra
     return np.asarray(vs), np.asarray(us)
 
 
-def _edges_on_rows(bev: np.ndarray, binary: np.ndarray, rows: np.ndarray, centers: np.ndarray,
-                   half: int, wpx: float, mode: str, paint_contrast: float | None = None, valid=None):
-    """Both edges of the marker near ``centers`` on each row; NaN where not found.
+@nb.njit(cache=True)
+def _measure_rows(bev, binary, rows, centers, lo, hi, half, wpx, mode):  # pragma: no cover (numba)
+    """Both edges of the marker nearest ``centers`` on each BEV row (see :func:`_edges_on_rows`).
 
-    The half level of each edge is halfway between the road level on that side and the paint:
-    the row's own peak, or ``road level + paint_contrast`` when given (a contrast common to the
-    frame, so that a marker blurred below its full brightness is not widened)."""
+    ``mode``: 0 binary, 1 subpixel, 2 area. Returns ``ul, ur, contrast`` (NaN where not found).
+    """
+    n = rows.shape[0]
     W = bev.shape[1]
-    n = rows.size
-    k = np.arange(-half, half + 1)
-    raw_cols = np.rint(centers).astype(int)[:, None] + k[None, :]
-    cols = np.clip(raw_cols, 0, W - 1)
-    P = bev[rows[:, None], cols]
-    if valid is not None:
-        # Pixels outside the BEV or the camera image are unknown, not black.
-        lo, hi = valid
-        P = np.where((raw_cols >= lo[rows][:, None]) & (raw_cols <= hi[rows][:, None]), P, np.nan)
-    Bm = binary[rows[:, None], cols].astype(bool)
-    # The run of marker pixels containing (or nearest to) the window centre.
-    mid = half
-    any_ = Bm.any(axis=1)
-    idx = np.arange(2 * half + 1)
-    dist = np.where(Bm, np.abs(idx[None, :] - mid), 10**6)
-    seed = np.argmin(dist, axis=1)
-    # Extend the run left and right from the seed while pixels are set.
-    notB = ~Bm
-    left_stop = np.where(notB & (idx[None, :] < seed[:, None]), idx[None, :], -1).max(axis=1)
-    right_stop = np.where(notB & (idx[None, :] > seed[:, None]), idx[None, :], 2 * half + 1).min(axis=1)
-    first = left_stop + 1
-    last = right_stop - 1
-    ok = any_ & (first > 0) & (last < 2 * half)
-    base = cols[:, 0].astype(float)
-    if mode == "binary":
-        ul = base + first - 0.5
-        ur = base + last + 0.5
-        contrast = np.full(n, np.nan)
-        r = np.arange(n)
-        peak = P[r, np.clip(seed, 0, 2 * half)]
-        contrast = peak - 0.5 * (P[r, np.clip(first - 2, 0, 2 * half)] + P[r, np.clip(last + 2, 0, 2 * half)])
-        ul[~ok] = np.nan
-        ur[~ok] = np.nan
-        return ul, ur, contrast
-    r = np.arange(n)
-    # Paint level: the brightest pixel of the run (the run is >= 1 px); road levels: the mean of
-    # a band one marker width outside the run on each side.
-    inside = Bm & (idx[None, :] >= first[:, None]) & (idx[None, :] <= last[:, None])
-    paint = np.where(inside, P, -np.inf).max(axis=1)
+    ul = np.full(n, np.nan)
+    ur = np.full(n, np.nan)
+    contrast = np.full(n, np.nan)
     m = max(2, int(round(wpx)))
-    lb0 = np.clip(first - 1 - m, 0, 2 * half)
-    lb1 = np.clip(first - 1, 0, 2 * half)
-    rb0 = np.clip(last + 1, 0, 2 * half)
-    rb1 = np.clip(last + 1 + m, 0, 2 * half)
-    cs = np.concatenate([np.zeros((n, 1), P.dtype), np.cumsum(P, axis=1)], axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        bg_l = (cs[r, lb1] - cs[r, lb0]) / np.maximum(lb1 - lb0, 1)
-        bg_r = (cs[r, rb1 + 1] - cs[r, rb0 + 1]) / np.maximum(rb1 - rb0, 1)
-        if paint_contrast is None:
-            half_l = 0.5 * (bg_l + paint)
-            half_r = 0.5 * (bg_r + paint)
-        else:
-            half_l = bg_l + 0.5 * paint_contrast
-            half_r = bg_r + 0.5 * paint_contrast
-        # Rising crossing: the last index j <= first with P[j] < half_l, then interpolate j..j+1.
-        below_l = (P < half_l[:, None]) & (idx[None, :] <= first[:, None])
-        jl = np.where(below_l, idx[None, :], -1).max(axis=1)
-        jl1 = np.clip(jl + 1, 0, 2 * half)
-        pl0, pl1 = P[r, np.clip(jl, 0, 2 * half)], P[r, jl1]
-        ul = base + jl + (half_l - pl0) / (pl1 - pl0)
-        below_r = (P < half_r[:, None]) & (idx[None, :] >= last[:, None])
-        jr = np.where(below_r, idx[None, :], 2 * half + 1).min(axis=1)
-        jr0 = np.clip(jr - 1, 0, 2 * half)
-        pr0, pr1 = P[r, jr0], P[r, np.clip(jr, 0, 2 * half)]
-        ur = base + jr0 + (pr0 - half_r) / (pr0 - pr1)
-    good = ok & (jl >= 0) & (jr <= 2 * half) & (pl1 > pl0) & (pr0 > pr1) & (jl < jr)
-    contrast = paint - 0.5 * (bg_l + bg_r)
-    if mode == "area":
-        ul, ur, good = _area_edges(P, cs, ul - base, ur - base, good, wpx)
-        ul, ur = ul + base, ur + base
-    ul[~good] = np.nan
-    ur[~good] = np.nan
+    for r in range(n):
+        v = rows[r]
+        lo_v = max(0, int(np.ceil(lo[v])))
+        hi_v = min(W - 1, int(np.floor(hi[v])))
+        ci = int(round(centers[r]))
+        # nearest marker pixel to the centre within +-half
+        seed = -1
+        for d in range(half + 1):
+            for j in (ci - d, ci + d):
+                if lo_v <= j <= hi_v and binary[v, j]:
+                    seed = j
+                    break
+            if seed >= 0:
+                break
+        if seed < 0:
+            continue
+        first = seed
+        while first - 1 >= lo_v and binary[v, first - 1] and first - 1 >= ci - half:
+            first -= 1
+        last = seed
+        while last + 1 <= hi_v and binary[v, last + 1] and last + 1 <= ci + half:
+            last += 1
+        if first - 1 - m < lo_v or last + 1 + m > hi_v:
+            continue
+        paint = bev[v, first]
+        for j in range(first, last + 1):
+            if bev[v, j] > paint:
+                paint = bev[v, j]
+        bg_l = 0.0
+        for j in range(first - 1 - m, first - 1):
+            bg_l += bev[v, j]
+        bg_l /= m
+        bg_r = 0.0
+        for j in range(last + 2, last + 2 + m):
+            bg_r += bev[v, j]
+        bg_r /= m
+        contrast[r] = paint - 0.5 * (bg_l + bg_r)
+        if mode == 0:
+            ul[r] = first - 0.5
+            ur[r] = last + 0.5
+            continue
+        half_l = 0.5 * (bg_l + paint)
+        half_r = 0.5 * (bg_r + paint)
+        jl = first
+        while jl >= lo_v and bev[v, jl] >= half_l:
+            jl -= 1
+        jr = last
+        while jr <= hi_v and bev[v, jr] >= half_r:
+            jr += 1
+        if jl < lo_v or jr > hi_v:
+            continue
+        p0, p1 = bev[v, jl], bev[v, jl + 1]
+        q0, q1 = bev[v, jr - 1], bev[v, jr]
+        if not (p1 > p0 and q0 > q1):
+            continue
+        a = jl + (half_l - p0) / (p1 - p0)
+        b = (jr - 1) + (q0 - half_r) / (q0 - q1)
+        if not b > a:
+            continue
+        if mode == 1:
+            ul[r] = a
+            ur[r] = b
+            continue
+        # mode 2: centroid and area above a linear road level
+        fwhm = b - a
+        if fwhm >= 2.5 * wpx + 2.0:
+            continue
+        c0 = 0.5 * (a + b)
+        hw = 0.5 * fwhm + max(fwhm, wpx)
+        mm = max(3.0, wpx)
+        i0 = int(np.ceil(c0 - hw))
+        i1 = int(np.floor(c0 + hw))
+        l0 = int(np.floor(c0 - hw - mm))
+        r1 = int(np.ceil(c0 + hw + mm))
+        if l0 < lo_v or r1 > hi_v or i1 <= i0 or i0 <= l0 or r1 <= i1:
+            continue
+        sl = 0.0
+        for j in range(l0, i0):
+            sl += bev[v, j]
+        sl /= (i0 - l0)
+        sr = 0.0
+        for j in range(i1 + 1, r1 + 1):
+            sr += bev[v, j]
+        sr /= (r1 - i1)
+        uL = 0.5 * (l0 + i0 - 1)
+        uR = 0.5 * (i1 + 1 + r1)
+        beta = (sr - sl) / max(uR - uL, 1.0)
+        alpha = sl - beta * uL
+        A = 0.0
+        M1 = 0.0
+        for j in range(i0, i1 + 1):
+            q = bev[v, j] - alpha - beta * j
+            A += q
+            M1 += q * j
+        if not A > 0:
+            continue
+        cen = M1 / A
+        ul[r] = cen - 0.5 * A
+        ur[r] = cen + 0.5 * A
     return ul, ur, contrast
 
 
-def _area_edges(P, cs, ul, ur, good, wpx):
-    """Centroid and area of the marker's profile above a linear road level.
+_MODES = {"binary": 0, "subpixel": 1, "area": 2}
 
-    Blur, whatever its width or direction, keeps the area under the profile: area / contrast
-    is the marker's width even when the marker is narrower than the blur (far away, or seen
-    at a grazing angle, where half-level crossings widen it). Returns the centroid
-    ``+- area / 2`` in units of the paint contrast 1 (the caller rescales with a contrast common
-    to all markers; eq. (8) only needs the ratio of the widths).
+
+def _edges_on_rows(bev: np.ndarray, binary: np.ndarray, rows: np.ndarray, centers: np.ndarray,
+                   half: int, wpx: float, mode: str, valid):
+    """Both edges of the marker near ``centers`` on each row; NaN where not found.
+
+    The marker's run is the set of thresholded pixels containing (or nearest to) the centre.
+    ``binary``: its first and last pixel +-0.5. ``subpixel``: on each side, the crossing of the
+    level halfway between the road (mean of one marker width beyond the run) and the run's
+    peak. ``area``: around those crossings, a window 1.5 half-maximum widths wider on each
+    side; the road level is a line through the means of bands beyond it; the marker's area above
+    it and its centroid give the edges ``centroid -+ area / 2`` (grey level x px; the caller
+    divides by a paint contrast). ``valid`` is ``(lo, hi)`` per BEV row: columns from inside
+    the camera image.
     """
-    n, L = P.shape
-    fwhm = np.where(good, ur - ul, wpx)
-    c0 = np.where(good, 0.5 * (np.nan_to_num(ul) + np.nan_to_num(ur)), 0.5 * L)
-    hw = 0.5 * fwhm + np.maximum(fwhm, wpx)
-    m = max(3.0, float(wpx))
-    i0 = np.ceil(c0 - hw).astype(int)
-    i1 = np.floor(c0 + hw).astype(int)
-    l0 = np.floor(c0 - hw - m).astype(int)
-    r1 = np.ceil(c0 + hw + m).astype(int)
-    inside = good & (l0 >= 0) & (r1 <= L - 1) & (i1 > i0)
-    i0, i1 = np.clip(i0, 0, L - 1), np.clip(i1, 0, L - 1)
-    l0, r1 = np.clip(l0, 0, L - 1), np.clip(r1, 0, L - 1)
-    r = np.arange(n)
-    idx = np.arange(L, dtype=P.dtype)
-    cs1 = np.concatenate([np.zeros((n, 1), P.dtype), np.cumsum(P * idx[None, :], axis=1)], axis=1)
-    nl = np.maximum(i0 - l0, 1)
-    nr = np.maximum(r1 - i1, 1)
-    bgL = (cs[r, i0] - cs[r, l0]) / nl
-    bgR = (cs[r, r1 + 1] - cs[r, i1 + 1]) / nr
-    uL = 0.5 * (l0 + i0 - 1)
-    uR = 0.5 * (i1 + 1 + r1)
-    beta = (bgR - bgL) / np.maximum(uR - uL, 1.0)
-    alpha = bgL - beta * uL
-    nw = (i1 - i0 + 1).astype(float)
-    s_i = nw * 0.5 * (i0 + i1)
-    s_i2 = (i1 * (i1 + 1) * (2 * i1 + 1) - (i0 - 1) * i0 * (2 * i0 - 1)) / 6.0
-    S0 = cs[r, i1 + 1] - cs[r, i0]
-    S1 = cs1[r, i1 + 1] - cs1[r, i0]
-    A = S0 - (alpha * nw + beta * s_i)
-    M1 = S1 - (alpha * s_i + beta * s_i2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cen = M1 / A
-    # Rows blurred to more than 2.5 marker widths reach the neighbouring road texture.
-    ok = inside & (A > 0) & np.isfinite(cen) & (fwhm < 2.5 * wpx + 2.0)
-    return cen - 0.5 * A, cen + 0.5 * A, ok
+    lo, hi = valid
+    return _measure_rows(bev, binary, rows.astype(np.int64), centers.astype(np.float64),
+                         np.asarray(lo, np.float64), np.asarray(hi, np.float64), int(half), float(wpx),
+                         _MODES[mode])
 
 
-def _robust_fit(v: np.ndarray, u: np.ndarray, deg: int):
-    """``polyfit`` with one pass of rejection at 3 robust sigma; ``(coef, rms, inliers)``."""
+def _polyfit(x: np.ndarray, y: np.ndarray, deg: int) -> np.ndarray:
+    """Least-squares polynomial (highest power first, as ``np.polyval``), normal equations."""
+    V = np.vander(x, deg + 1)
+    return np.linalg.solve(V.T @ V, V.T @ y)
+
+
+def _robust_fit(v: np.ndarray, u: np.ndarray, deg: int, v0: float):
+    """Fit of ``u(v - v0)`` with one pass of rejection at 3 robust sigma; ``(coef, rms, inliers)``."""
     deg = min(deg, max(0, v.size - 2))
-    x = (v - v.mean())
-    c = np.polyfit(x, u, deg)
+    x = (v - v0) * 0.01
+    c = _polyfit(x, u, deg)
     res = u - np.polyval(c, x)
     s = 1.4826 * np.median(np.abs(res)) + 1e-3
     keep = np.abs(res) < 3.0 * s + 0.05
     if keep.sum() > deg + 2 and not keep.all():
-        c = np.polyfit(x[keep], u[keep], deg)
+        c = _polyfit(x[keep], u[keep], deg)
         res = u - np.polyval(c, x)
     rms = float(np.sqrt(np.mean(res[keep] ** 2))) if keep.any() else np.nan
-    # Back to polynomials in v (not v - mean): compose with the shift.
-    coef = np.polynomial.polynomial.Polynomial(c[::-1])
-    shifted = coef(np.polynomial.polynomial.Polynomial([-v.mean(), 1.0]))
-    full = shifted.coef[::-1]
-    if full.size < deg + 1:
-        full = np.concatenate([np.zeros(deg + 1 - full.size), full])
-    return full, rms, keep
+    return c, rms, keep
 
 
 def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, dx_m: float, dy_m: float,
                    marker_width_m: float, opts: LaneOptions = LaneOptions()) -> list[Marker]:
-    """Painted lines in a grey BEV (float32), sorted left to right (increasing ``u``).
+    """Painted lines in a grey BEV, sorted left to right (increasing ``u``).
 
     Parameters
     ----------
-    bev : (h_pix, w_pix) float32 array
+    bev : (h_pix, w_pix) uint8 or float32 array
         Grey BEV.
     valid_lo, valid_hi : (h_pix,) arrays
         Columns of each row that come from inside the camera image (:meth:`Bev.valid_columns`).
@@ -355,14 +391,13 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
     """
     Hh, W = bev.shape
     wpx = marker_width_m / dy_m
-    resp = marker_response(bev, int(round(max(wpx, 1.0))))
-    # Responses within a marker width of the image border are artefacts of the black fill.
-    cols = np.arange(W, dtype=np.float32)[None, :]
+    width = int(round(max(wpx, 1.0)))
+    resp = marker_response(bev, width)
+    # Responses within 1.5 marker widths of the image's footprint are artefacts of the black fill.
     margin = max(2.0, 1.5 * wpx)
-    inside = (cols >= valid_lo[:, None] + margin) & (cols <= valid_hi[:, None] - margin)
-    resp = np.where(inside, resp, 0.0).astype(np.float32)
-    thr = _threshold(resp, opts)
-    binary = (resp > thr).astype(np.uint8)
+    lo64, hi64 = np.asarray(valid_lo, np.float64), np.asarray(valid_hi, np.float64)
+    thr = _threshold(resp, width, lo64, hi64, margin, opts)
+    binary = _binarize(resp, thr, lo64, hi64, margin)
     binary = _remove_small_blobs(binary, max(2, int(round(opts.min_blob_m / dx_m))))
     min_rows = max(3, int(round(opts.min_line_m / dx_m)))
     starts = _line_starts(binary, min_rows // 2, max(3, int(round(opts.min_line_gap_m / dy_m))))
@@ -371,9 +406,7 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
     half_window = max(3, int(round(opts.window_m / dy_m)))
     opx = dict(n_windows=opts.n_windows, half_window=half_window,
                min_pix=max(3, int(round(0.3 * (Hh / opts.n_windows) * max(wpx, 1.0) * 0.5))))
-    half = max(4, int(round(1.6 * wpx)) + max(2, int(round(wpx))) + 2)
-    if opts.edges == "area":
-        half = max(half, int(round(6.0 * wpx)) + 4)
+    half = max(4, int(round(1.6 * wpx)) + 2)
     found = []
     for s in starts:
         wv, wu = _track(binary, s, opx)
@@ -391,7 +424,7 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
         if rows.size < min_rows:
             continue
         ul, ur, contrast = _edges_on_rows(bev, binary, rows, centers, half, wpx, opts.edges,
-                                          valid=(np.floor(valid_lo), np.ceil(valid_hi)))
+                                          (valid_lo, valid_hi))
         good = np.isfinite(ul) & np.isfinite(ur)
         if good.sum() < min_rows:
             continue
@@ -414,8 +447,9 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
         if good.sum() < min_rows:
             continue
         m = Marker(rows[good].astype(float), ul[good], ur[good], c_med)
-        fl, rl, kl = _robust_fit(m.v, m.u_left, opts.fit_degree)
-        fr, rr, kr = _robust_fit(m.v, m.u_right, opts.fit_degree)
+        m.v0 = float(m.v.mean())
+        fl, rl, kl = _robust_fit(m.v, m.u_left, opts.fit_degree, m.v0)
+        fr, rr, kr = _robust_fit(m.v, m.u_right, opts.fit_degree, m.v0)
         m.fit_left, m.fit_right, m.rms_left, m.rms_right = fl, fr, rl, rr
         m.inliers = kl & kr
         if m.inliers.sum() < min_rows:
@@ -428,7 +462,7 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
         if out:
             prev = out[-1]
             vv = np.intersect1d(prev.v, mk.v)
-            if vv.size and np.median(np.abs(np.polyval(prev.fit_left, vv) - np.polyval(mk.fit_left, vv))) < wpx:
+            if vv.size and np.median(np.abs(prev.u_at(vv)[0] - mk.u_at(vv)[0])) < wpx:
                 if mk.v.size > prev.v.size:
                     out[-1] = mk
                 continue

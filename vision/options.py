@@ -34,13 +34,23 @@ class EstimatorOptions:
         fixed mount (roll 0, pitch = tilt, yaw 0).
     half_width_m, x_min_m, x_max_m, dx_m, dy_m :
         Region of interest and pixel size; ``None`` picks them from the camera
-        (:func:`vision.ipm.default_grid`).
+        (:func:`vision.ipm.default_grid`): edges measured in the BEV need about the image's
+        resolution at a third of the range (1 to 4 cm) and 0.1 m rows; a BEV that only finds the
+        markers for the image measurement is twice as coarse with 0.2 m rows.
+    narrow_bev : bool
+        With a seed that knows its lines, warp only the part of the BEV around them (1.5 m
+        beyond the outer lines plus the curvature's drift), and the whole width only if a line
+        is lost there. Speed only: the lines and their measurement are the same.
 
     Lane markers (:mod:`vision.lanes`)
     ----------------------------------
     edges : {"area", "subpixel", "binary"}
-        Centroid and area of each marker's profile on each BEV row (blur-proof widths),
-        half-level crossings, or the thresholded image's edge pixels (paper).
+        Centroid and area of each marker's profile on each cut (blur-proof widths),
+        half-level crossings, or the thresholded BEV's edge pixels (paper; BEV only).
+    edge_domain : {"image", "bev"}
+        Where the edges are measured: on the camera image's rows or columns (:mod:`vision.edges`;
+        the BEV only finds and tracks the markers, and can be coarse), or on the BEV's rows
+        (the paper).
     fit_degree : int
         Degree of the edge polynomials (2 in the paper); in the refinement, of the road shape
         common to all lines (3 follows a clothoid's curvature change).
@@ -96,20 +106,22 @@ class EstimatorOptions:
     method: str = "alrazouk"
     ipm_pose: str = "seed"
     half_width_m: float = 8.0
+    narrow_bev: bool = True
     x_min_m: float | None = None
     x_max_m: float | None = None
-    dx_m: float = 0.1
+    dx_m: float | None = None
     dy_m: float | None = None
     edges: str = "area"
+    edge_domain: str = "bev"
     fit_degree: int = 3
-    fit_range_m: float = 20.0
+    fit_range_m: float = 100.0
     roll_equation: str = "auto"
     solver: str = "numeric"
     cross_sections: int = 9
     known_widths: bool = True
     eq21: bool = False
     vp: str = "tangent"
-    refine_iterations: int = 3
+    refine_iterations: int = 2
     rewarp_deg: float = 2.0
     max_warps: int = 3
     marker_width_tolerance_m: float = 0.0
@@ -120,6 +132,9 @@ class EstimatorOptions:
         _choice("method", self.method, ("alrazouk", "damon2018"))
         _choice("ipm_pose", self.ipm_pose, ("seed", "nominal"))
         _choice("edges", self.edges, ("area", "subpixel", "binary"))
+        _choice("edge_domain", self.edge_domain, ("image", "bev"))
+        if self.edge_domain == "image" and self.edges == "binary":
+            raise VisionError('vision option edges = "binary" needs edge_domain = "bev"')
         _choice("roll_equation", self.roll_equation, ("auto", "eq8", "eq10"))
         _choice("solver", self.solver, ("numeric", "pade"))
         _choice("vp", self.vp, ("tangent", "lines"))
@@ -129,7 +144,8 @@ class EstimatorOptions:
         _range("refine_iterations", self.refine_iterations, 0, 20)
         _range("max_warps", self.max_warps, 1, 10)
         _range("half_width_m", self.half_width_m, 1.0, 30.0)
-        _range("dx_m", self.dx_m, 0.005, 1.0)
+        if self.dx_m is not None:
+            _range("dx_m", self.dx_m, 0.005, 1.0)
         if self.dy_m is not None:
             _range("dy_m", self.dy_m, 0.002, 0.5)
         if not self.rewarp_deg > 0:
@@ -143,7 +159,7 @@ class EstimatorOptions:
         """Alrazouk et al. 2024 as written: BEV at the fixed mount pose, edges of the binary
         image, degree-2 fits, one cross-section, the Pade solver, eq. (21), straight-line
         vanishing point, one pass."""
-        base = cls(ipm_pose="nominal", edges="binary", fit_degree=2, fit_range_m=500.0, cross_sections=1, solver="pade",
+        base = cls(ipm_pose="nominal", edges="binary", edge_domain="bev", fit_degree=2, fit_range_m=500.0, cross_sections=1, solver="pade",
                    eq21=True, vp="lines", refine_iterations=0, rewarp_deg=math.inf, max_warps=1,
                    known_widths=False)
         return replace(base, **changes)
@@ -151,7 +167,7 @@ class EstimatorOptions:
     @classmethod
     def damon2018(cls, **changes: Any) -> "EstimatorOptions":
         """The 2018 roll loop with ``delta_phi = 0.1 deg`` and the paper's cubic fits."""
-        base = cls(method="damon2018", fit_degree=3, edges="binary", ipm_pose="seed")
+        base = cls(method="damon2018", fit_degree=3, edges="binary", edge_domain="bev", ipm_pose="seed")
         return replace(base, **changes)
 
 

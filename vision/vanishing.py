@@ -53,8 +53,7 @@ def r3_from_vp(K, vp_px) -> np.ndarray:
     v = np.asarray(vp_px, dtype=float)
     if v.shape[-1] == 2:
         v = np.concatenate([v, np.ones(v.shape[:-1] + (1,))], axis=-1)
-    r = np.linalg.solve(np.asarray(K, dtype=float), v[..., None])[..., 0] if v.ndim > 1 else \
-        np.linalg.solve(np.asarray(K, dtype=float), v)
+    r = v @ np.linalg.inv(np.asarray(K, dtype=float)).T
     n = np.linalg.norm(r, axis=-1, keepdims=True)
     if np.any(n == 0):
         raise VisionError("vanishing point: zero direction")
@@ -149,14 +148,10 @@ def angle_sigmas(K, vp_px, sx_px: float, sy_px: float) -> tuple[float, float]:
     """
     vp = np.asarray(vp_px, dtype=float)
     e = 0.5
-
-    def ang(p):
-        return np.array(yaw_pitch_from_r3(r3_from_vp(K, p)))
-
-    J = np.empty((2, 2))
-    for j in range(2):
-        d = np.zeros(2)
-        d[j] = e
-        J[:, j] = (ang(vp + d) - ang(vp - d)) / (2 * e)
+    pts = vp + np.array([[e, 0.0], [-e, 0.0], [0.0, e], [0.0, -e]])
+    r = r3_from_vp(K, pts)
+    psi = np.arctan2(r[:, 0], r[:, 2])
+    theta = -np.arcsin(np.clip(r[:, 1], -1.0, 1.0))
+    J = np.array([[psi[0] - psi[1], psi[2] - psi[3]], [theta[0] - theta[1], theta[2] - theta[3]]]) / (2 * e)
     cov = J @ np.diag([sx_px**2, sy_px**2]) @ J.T
     return float(math.sqrt(cov[0, 0])), float(math.sqrt(cov[1, 1]))
