@@ -524,7 +524,9 @@ class Estimator:
                 model = self._model(edges, R, H, shape_deg, bev.grid, select=it == 0)
                 shape_deg = model.c.size + 1       # the degree chosen in the first pass is kept
                 dmodel = model if o.vp == "tangent" else self._model(edges, R, H, 1, bev.grid)
-                d = lane_direction(dmodel, H)
+                # The two outer lines, as the paper (section V.B): the dashed centre line, seen in
+                # pieces, adds more error than information to the direction.
+                d = lane_direction(dmodel, H, lines=[0, dmodel.n_lines - 1])
                 if d is None:
                     return VisionEstimate.invalid("no lane direction (vanishing point)", o.method, debug=dbg)
                 psi_new, theta_new = yaw_pitch_from_r3(R.T @ d)
@@ -623,15 +625,13 @@ class Estimator:
         return np.arctan2(p, f_vx), coefficients_eq8(ratio)
 
     def _model(self, edges: list[_Edge], R, H, deg, grid: BevGrid, select: bool = True) -> LaneModel:
-        rays = np.concatenate([e.rays for e in edges])
+        rays, bounds, steps = _stack_edges(edges)
         x, y = ground_from_rays(rays, R, H)
         from_image = edges[0].from_image
         if from_image:
             # Metres of lateral position per pixel along each cut (the measurement's direction).
-            d = np.concatenate([e.cut_step for e in edges])
-            _, y2 = ground_from_rays(rays + d, R, H)
+            _, y2 = ground_from_rays(rays + steps, R, H)
             q_all = np.abs(y2 - y)
-        bounds = np.cumsum([0] + [e.rays.shape[0] for e in edges])
         xs, ys, qs = [], [], []
         for k in range(len(edges)):
             sl = slice(bounds[k], bounds[k + 1])
@@ -670,11 +670,12 @@ class Estimator:
         cross-sections ``xs``: ``atan(y / H)``."""
         J = model.n_lines
         if use_eq10:
-            p = np.stack([0.5 * (model.y(2 * j, xs) + model.y(2 * j + 1, xs)) for j in range(3)], axis=-1)
-            return np.arctan(p / H), coefficients_eq10()
+            Y = model.y_edges(np.arange(6), xs)
+            p = 0.5 * (Y[0::2] + Y[1::2])
+            return np.arctan(p.T / H), coefficients_eq10()
         j1 = J - 1
-        p = np.stack([model.y(0, xs), model.y(1, xs), model.y(2 * j1, xs), model.y(2 * j1 + 1, xs)], axis=-1)
-        return np.arctan(p / H), coefficients_eq8(ratio)
+        Y = model.y_edges([0, 1, 2 * j1, 2 * j1 + 1], xs)
+        return np.arctan(Y.T / H), coefficients_eq8(ratio)
 
     def _model_alpha_sigmas(self, model: LaneModel, xs, use_eq10, H):
         J = model.n_lines
@@ -716,26 +717,44 @@ class Estimator:
         """Section V.B: bounds of the vanishing point from two points on each outer line,
         moved by their 1-sigma (px), turned into 1-sigma of yaw and pitch (half the bound)."""
         cam = self.camera
-        R = _R_o_from_cp(phi, theta, psi)
+        R_cp_from_o = _R_o_from_cp(phi, theta, psi).T
         J = model.n_lines
-        pts, dps = [], []
+        P, Q = [], []
         for j in (J - 1, 0):      # right line: A, B; left line: C, D
             kl, kr = 2 * j, 2 * j + 1
             x_lo = max(model.x_min[kl], model.x_min[kr])
             x_hi = min(model.x_max[kl], model.x_max[kr])
-            for x in (x_lo + 0.1 * (x_hi - x_lo), x_hi - 0.1 * (x_hi - x_lo)):
-                y = 0.5 * float(model.y(kl, x) + model.y(kr, x))
-                s = 0.5 * math.hypot(float(model.sigma_y(kl, x)[0]), float(model.sigma_y(kr, x)[0]))
-                p0 = cam.K @ (R.T @ np.array([x, y, -H]))
-                p1 = cam.K @ (R.T @ np.array([x, y + max(s, 1e-6), -H]))
-                a0 = p0[:2] / p0[2]
-                pts.append(a0)
-                dps.append(float(np.linalg.norm(p1[:2] / p1[2] - a0)))
-        dp = float(np.sqrt(np.mean(np.square(dps))))
-        dx, dy, _ = vp_bounds(pts[0], pts[1], pts[2], pts[3], dp)
+            xs = np.array([x_lo + 0.1 * (x_hi - x_lo), x_hi - 0.1 * (x_hi - x_lo)])
+            y = 0.5 * (model.y(kl, xs) + model.y(kr, xs))
+            s = 0.5 * np.hypot(model.sigma_y(kl, xs), model.sigma_y(kr, xs))
+            for x_, y_, s_ in zip(xs, y, s):
+                P.append((x_, y_, -H))
+                Q.append((x_, y_ + max(s_, 1e-6), -H))
+        p = np.asarray(P) @ (cam.K @ R_cp_from_o).T
+        q = np.asarray(Q) @ (cam.K @ R_cp_from_o).T
+        a = p[:, :2] / p[:, 2:3]
+        dp = float(np.sqrt(np.mean(np.sum((q[:, :2] / q[:, 2:3] - a) ** 2, axis=1))))
+        dx, dy, _ = vp_bounds(a[0], a[1], a[2], a[3], dp)
         if not (math.isfinite(dx) and math.isfinite(dy)):
             return math.inf, math.inf
         return angle_sigmas(cam.K, np.asarray(vp, float), 0.5 * dx, 0.5 * dy)
+
+
+_STACK_CACHE: dict = {}
+
+
+def _stack_edges(edges: list[_Edge]):
+    """All edges' rays in one array, the bounds of each, and the cut steps (cached per list)."""
+    key = id(edges)
+    hit = _STACK_CACHE.get(key)
+    if hit is not None and hit[0] is edges:
+        return hit[1]
+    rays = np.concatenate([e.rays for e in edges])
+    bounds = np.cumsum([0] + [e.rays.shape[0] for e in edges])
+    steps = np.concatenate([e.cut_step for e in edges]) if edges[0].from_image else None
+    _STACK_CACHE.clear()
+    _STACK_CACHE[key] = (edges, (rays, bounds, steps))
+    return rays, bounds, steps
 
 
 def _vehicle_sigmas(phi, theta, psi, s_phi, s_theta, s_psi, tilt):

@@ -58,6 +58,15 @@ R_CS_FROM_CP.setflags(write=False)
 
 def _rot(angle_rad, i: int, j: int) -> np.ndarray:
     """Rotation by ``angle_rad`` in the (i, j) plane, i.e. about the remaining axis."""
+    if isinstance(angle_rad, (float, int)) and not isinstance(angle_rad, bool):
+        # Scalar fast path (the estimator builds many single matrices per frame): same result.
+        c, s = math.cos(angle_rad), math.sin(angle_rad)
+        R = np.eye(3)
+        R[i, i] = c
+        R[j, j] = c
+        R[i, j] = -s
+        R[j, i] = s
+        return R
     a = np.asarray(angle_rad, dtype=float)
     c, s = np.cos(a), np.sin(a)
     R = np.zeros(a.shape + (3, 3))

@@ -91,6 +91,19 @@ class LaneModel:
                 out = out + ci * p * (p - 1) * x ** (p - 2) / _XS**2
         return out
 
+    def y_edges(self, ks, x) -> np.ndarray:
+        """Lateral positions ``(len(ks), len(x))`` of edges ``ks`` at ``x``, m."""
+        x = np.asarray(x, float)
+        ks = np.asarray(ks)
+        j = self.edge_line[ks]
+        t = x / _XS
+        shape = np.zeros_like(t)
+        tp = t * t
+        for ci in self.c:
+            shape = shape + ci * tp
+            tp = tp * t
+        return self.a[ks][:, None] + self.b[j][:, None] * x[None, :] + self.line_scale[j][:, None] * shape[None, :]
+
     def y(self, k: int, x):
         """Lateral position of edge ``k`` at ``x``, m."""
         j = self.edge_line[k]
@@ -338,7 +351,8 @@ def lane_direction(model: LaneModel, height_m: float, lines=None) -> np.ndarray 
     if len(rows) < 2:
         return None
     if len(rows) == 2:
-        d = np.cross(rows[0], rows[1])
+        a, b = rows
+        d = np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
         nd = np.sqrt(d @ d)
         if nd == 0:
             return None

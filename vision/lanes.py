@@ -187,34 +187,50 @@ def _line_starts(binary: np.ndarray, min_count: int, min_gap_px: int) -> list[in
 
 def _track(binary: np.ndarray, start_col: int, opts_px: dict) -> tuple[np.ndarray, np.ndarray]:
     """Sliding windows from the bottom (near) to the top (far): window centres ``(v, u)``
-    of the windows that held enough marker pixels."""
+    of the windows that held enough marker pixels; across empty windows (the gaps of a dashed
+    line) the line's current direction carries the window on."""
+    return _track_nb(binary, float(start_col), int(opts_px["n_windows"]), int(opts_px["half_window"]),
+                     float(opts_px["min_pix"]))
+
+
+@nb.njit(cache=True)
+def _track_nb(binary, c, n_win, hw, min_pix):  # pragma: no cover (numba)
     Hh, W = binary.shape
-    n_win, hw, min_pix = opts_px["n_windows"], opts_px["half_window"], opts_px["min_pix"]
     win_h = Hh / n_win
-    c = float(start_col)
     slope = 0.0  # du per dv going up (negative v)
-    vs, us = [], []
+    vs = np.empty(n_win)
+    us = np.empty(n_win)
+    n = 0
     for k in range(n_win):
         v1 = int(round(Hh - k * win_h))
         v0 = int(round(Hh - (k + 1) * win_h))
-        u0, u1 = int(round(c - hw)), int(round(c + hw)) + 1
+        u0 = int(round(c - hw))
+        u1 = int(round(c + hw)) + 1
         if u1 <= 0 or u0 >= W:
             break
-        u0c, u1c = max(u0, 0), min(u1, W)
-        cols = binary[v0:v1, u0c:u1c].sum(axis=0, dtype=np.float32)
-        tot = float(cols.sum())
+        u0c = max(u0, 0)
+        u1c = min(u1, W)
+        tot = 0.0
+        mom = 0.0
+        for v in range(v0, v1):
+            for u in range(u0c, u1c):
+                if binary[v, u]:
+                    tot += 1.0
+                    mom += u
         vm = 0.5 * (v0 + v1)
         if tot >= min_pix:
-            cnew = u0c + float((cols * np.arange(cols.size)).sum() / tot)
-            if vs:
-                dv = vm - vs[-1]
-                slope = 0.5 * slope + 0.5 * (cnew - us[-1]) / dv if dv != 0 else slope
-            vs.append(vm)
-            us.append(cnew)
+            cnew = mom / tot
+            if n > 0:
+                dv = vm - vs[n - 1]
+                if dv != 0:
+                    slope = 0.5 * slope + 0.5 * (cnew - us[n - 1]) / dv
+            vs[n] = vm
+            us[n] = cnew
+            n += 1
             c = cnew + slope * (-win_h)
         else:
             c = c + slope * (-win_h)
-    return np.asarray(vs), np.asarray(us)
+    return vs[:n].copy(), us[:n].copy()
 
 
 @nb.njit(cache=True)
@@ -353,24 +369,47 @@ def _edges_on_rows(bev: np.ndarray, binary: np.ndarray, rows: np.ndarray, center
                          _MODES[mode])
 
 
-def _polyfit(x: np.ndarray, y: np.ndarray, deg: int) -> np.ndarray:
-    """Least-squares polynomial (highest power first, as ``np.polyval``), normal equations."""
-    V = np.vander(x, deg + 1)
-    return np.linalg.solve(V.T @ V, V.T @ y)
+def _median(a: np.ndarray) -> float:
+    """Median (numba; numpy's carries a large call overhead for small arrays)."""
+    return float(_median_nb(np.ascontiguousarray(a, dtype=np.float64))) if a.size else float("nan")
+
+
+@nb.njit(cache=True)
+def _median_nb(a):  # pragma: no cover (numba)
+    return np.median(a)
 
 
 def _robust_fit(v: np.ndarray, u: np.ndarray, deg: int, v0: float):
-    """Fit of ``u(v - v0)`` with one pass of rejection at 3 robust sigma; ``(coef, rms, inliers)``."""
+    """Fit of ``u(v - v0)`` with one pass of rejection at 3 robust sigma; ``(coef, rms, inliers)``
+    (coefficients highest power first, in ``(v - v0) / 100``)."""
     deg = min(deg, max(0, v.size - 2))
+    return _robust_fit_nb(v.astype(np.float64), u.astype(np.float64), deg, float(v0))
+
+
+@nb.njit(cache=True)
+def _polyfit_nb(x, y, deg):  # pragma: no cover (numba)
+    n = x.shape[0]
+    V = np.empty((n, deg + 1))
+    for i in range(n):
+        p = 1.0
+        for k in range(deg, -1, -1):
+            V[i, k] = p
+            p *= x[i]
+    return np.linalg.solve(V.T @ V, V.T @ y), V
+
+
+@nb.njit(cache=True)
+def _robust_fit_nb(v, u, deg, v0):  # pragma: no cover (numba)
     x = (v - v0) * 0.01
-    c = _polyfit(x, u, deg)
-    res = u - np.polyval(c, x)
+    c, V = _polyfit_nb(x, u, deg)
+    res = u - V @ c
     s = 1.4826 * np.median(np.abs(res)) + 1e-3
     keep = np.abs(res) < 3.0 * s + 0.05
-    if keep.sum() > deg + 2 and not keep.all():
-        c = _polyfit(x[keep], u[keep], deg)
-        res = u - np.polyval(c, x)
-    rms = float(np.sqrt(np.mean(res[keep] ** 2))) if keep.any() else np.nan
+    nk = keep.sum()
+    if nk > deg + 2 and nk < keep.size:
+        c, _ = _polyfit_nb(x[keep], u[keep], deg)
+        res = u - V @ c
+    rms = np.sqrt(np.mean(res[keep] ** 2)) if nk > 0 else np.nan
     return c, rms, keep
 
 
@@ -414,11 +453,11 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
             continue
         # Centre line through the windows, evaluated on every row they span.
         deg = 1 if wv.size < 4 else 2
-        cfit = np.polyfit(wv, wu, deg)
+        cfit, _ = _polyfit_nb(wv, wu, deg)
         v_lo = max(0, int(wv.min() - Hh / opts.n_windows / 2))
         v_hi = min(Hh - 1, int(wv.max() + Hh / opts.n_windows / 2))
         rows = np.arange(v_lo, v_hi + 1)
-        centers = np.polyval(cfit, rows)
+        centers = np.polyval(cfit, rows.astype(np.float64))
         inb = (centers > 2 * wpx) & (centers < W - 1 - 2 * wpx)
         rows, centers = rows[inb], centers[inb]
         if rows.size < min_rows:
@@ -432,7 +471,7 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
     if opts.edges == "area" and found:
         # One paint contrast for all markers (the best resolved one's), so that the widths keep
         # their ratio (eq. (8) needs only the ratio).
-        c_all = max(float(np.median(f[3][f[4]])) for f in found)
+        c_all = max(_median(f[3][f[4]]) for f in found)
         for f in found:
             cen, hw = 0.5 * (f[1] + f[2]), 0.5 * (f[2] - f[1]) / max(c_all, 1e-6)
             f[1][:], f[2][:] = cen - hw, cen + hw
@@ -442,7 +481,7 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
         good = good & (width > 0.4 * wpx) & (width < 2.5 * wpx + 2)
         if good.sum() < min_rows:
             continue
-        c_med = float(np.median(contrast[good]))
+        c_med = _median(contrast[good])
         good &= contrast > 0.6 * c_med
         if good.sum() < min_rows:
             continue
@@ -456,13 +495,13 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
             continue
         markers.append(m)
     # Merge duplicates (two starts tracking the same line).
-    markers.sort(key=lambda mk: float(np.median(mk.u_center)))
+    markers.sort(key=lambda mk: float(np.mean(mk.u_center)))
     out: list[Marker] = []
     for mk in markers:
         if out:
             prev = out[-1]
             vv = np.intersect1d(prev.v, mk.v)
-            if vv.size and np.median(np.abs(prev.u_at(vv)[0] - mk.u_at(vv)[0])) < wpx:
+            if vv.size and _median(np.abs(prev.u_at(vv)[0] - mk.u_at(vv)[0])) < wpx:
                 if mk.v.size > prev.v.size:
                     out[-1] = mk
                 continue

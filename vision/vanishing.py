@@ -118,6 +118,13 @@ def _intersections(A, B, C, D):
 _SIGNS = np.array([[sx, sy] for sx in (-1.0, 1.0) for sy in (-1.0, 1.0)])
 
 
+def _cross(a, b):
+    """Cross product of stacked 3-vectors (numpy's ``cross`` without its axis handling)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def vp_bounds(A, B, C, D, dp_px: float) -> tuple[float, float, np.ndarray]:
     """Section V.B: ``(dx, dy, vp)`` with ``dx = x_max - x_min``, ``dy = y_max - y_min`` over all
     intersections of line ``AB`` and line ``CD`` when each point moves by ``+-dp_px`` in x and y.
@@ -127,12 +134,15 @@ def vp_bounds(A, B, C, D, dp_px: float) -> tuple[float, float, np.ndarray]:
     """
     A, B, C, D = (np.asarray(p, dtype=float) for p in (A, B, C, D))
     s = _SIGNS * dp_px
-    Ai = (A + s)[:, None, None, None]
-    Bi = (B + s)[None, :, None, None]
-    Ci = (C + s)[None, None, :, None]
-    Di = (D + s)[None, None, None, :]
-    P = _intersections(np.broadcast_to(Ai, (4, 4, 4, 4, 2)), np.broadcast_to(Bi, (4, 4, 4, 4, 2)),
-                       np.broadcast_to(Ci, (4, 4, 4, 4, 2)), np.broadcast_to(Di, (4, 4, 4, 4, 2))).reshape(-1, 2)
+    Ai, Bi, Ci, Di = (p + s for p in (A, B, C, D))          # (4, 2) each
+    # line AB for all 16 (A, B) corners and line CD for all 16 (C, D): homogeneous, then meet.
+    L1 = _cross(np.concatenate([np.repeat(Ai, 4, 0), np.ones((16, 1))], 1),
+                  np.concatenate([np.tile(Bi, (4, 1)), np.ones((16, 1))], 1))
+    L2 = _cross(np.concatenate([np.repeat(Ci, 4, 0), np.ones((16, 1))], 1),
+                  np.concatenate([np.tile(Di, (4, 1)), np.ones((16, 1))], 1))
+    X = _cross(L1[:, None, :], L2[None, :, :]).reshape(-1, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        P = X[:, :2] / X[:, 2:3]
     P = P[np.all(np.isfinite(P), axis=1)]
     vp = _intersections(A, B, C, D)
     if P.size == 0 or not np.all(np.isfinite(vp)):
