@@ -76,6 +76,8 @@ class VisionEstimate:
         False when the frame gave no trustworthy estimate; ``reason`` says why.
     curvature_1_m : float
         Curvature of the lane at the vehicle, 1/m, positive turning left (mean of the lines used).
+    curvature_sigma_1_m : float
+        Its 1-sigma from the lane model's covariance, 1/m.
     lateral_offset_m : float
         Vehicle origin's offset from the midpoint between the outermost lines used, m, positive
         to the left (the road's centre line in the simulator's two- and three-line setups).
@@ -112,6 +114,7 @@ class VisionEstimate:
     yaw_sigma_rad: float
     valid: bool
     curvature_1_m: float = math.nan
+    curvature_sigma_1_m: float = math.nan
     lateral_offset_m: float = math.nan
     line_spacing_m: float = math.nan
     line_offsets_m: tuple[float, ...] = ()
@@ -568,7 +571,10 @@ class Estimator:
         all_centres = [0.5 * float(model.y(2 * j, x_c) + model.y(2 * j + 1, x_c)) for j in range(n_lines)]
         centres = [all_centres[0], all_centres[-1]]
         offsets = tuple(c + float(cam_off[1]) for c in all_centres)
-        curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if shape_deg >= 2 else 0.0
+        curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
+        i_c = model.n_edges + model.n_lines
+        curvature_sigma = (2.0 / 100.0 * math.sqrt(max(model.cov[i_c, i_c], 0.0)) if model.c.size
+                           else math.nan)
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
         # Eq. (14) as printed, with the fit residual as dp (BEV px) and the width tolerance as dw.
@@ -588,7 +594,8 @@ class Estimator:
             valid, reason = False, "attitude out of range (roll 65, pitch 25, yaw 45 deg)"
         return VisionEstimate(
             roll, pitch, yaw, s_roll, s_pitch, s_yaw, valid,
-            curvature_1_m=curvature, lateral_offset_m=lateral, line_spacing_m=spacing, line_offsets_m=offsets,
+            curvature_1_m=curvature, curvature_sigma_1_m=curvature_sigma, lateral_offset_m=lateral,
+            line_spacing_m=spacing, line_offsets_m=offsets,
             camera_xyz_rad=(float(phi), float(theta), float(psi)), vp_px=(float(vp[0]), float(vp[1])),
             n_lines=n_lines, roll_equation="eq10" if use_eq10 else "eq8", edge_rms_px=rms_px,
             n_edge_points=n_points, iterations=iterations, warps=warps, roll_bound_eq14_rad=bound,

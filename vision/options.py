@@ -124,7 +124,7 @@ class EstimatorOptions:
     refine_iterations: int = 2
     rewarp_deg: float = 2.0
     max_warps: int = 3
-    marker_width_tolerance_m: float = 0.0
+    marker_width_tolerance_m: float = 0.003
     damon_step_deg: float = 0.1
     damon_range_deg: float = 6.0
 

@@ -1,0 +1,146 @@
+"""Debug video: the camera frame with the detected lines, the vanishing point and the horizon,
+beside the BEV with the fitted edges and the cross-sections.
+
+Left panel (the camera frame): the edges of the markers used (green left edges, red right
+edges; blue for markers found but not used), the image lines of the paper's vanishing point
+when it used them (yellow), the vanishing point (magenta cross) and the horizon of the road
+plane at the estimated pose (cyan). Right panel (the BEV the markers were found in, scaled to
+the frame's height): the edge fits and the cross-sections (yellow rows). Text: the angles,
+their 1-sigma, the validity (or why not), the time.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .camera import Camera
+from .errors import VisionError
+from .estimator import VisionEstimate
+
+__all__ = ["DebugWriter", "render_debug"]
+
+GREEN, RED, BLUE, YELLOW, MAGENTA, CYAN, WHITE = ((0, 200, 0), (0, 0, 230), (230, 120, 0), (0, 220, 220),
+                                                  (220, 0, 220), (230, 230, 0), (255, 255, 255))
+
+
+def _pts(uv: np.ndarray) -> np.ndarray:
+    return np.round(uv).astype(np.int32).reshape(-1, 1, 2)
+
+
+def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: float | None = None) -> np.ndarray:
+    """The debug picture of one frame (uint8 BGR, the frame's height, wider by the BEV panel)."""
+    frame = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    frame = np.ascontiguousarray(frame[..., :3]).copy()
+    if frame.dtype != np.uint8:
+        frame = np.clip(np.nan_to_num(frame.astype(np.float32)), 0, 255).astype(np.uint8)
+    H, W = frame.shape[:2]
+    dbg = est.debug
+    bev_panel = np.zeros((H, max(1, H // 2), 3), np.uint8)
+    if dbg is not None and getattr(dbg, "bev", None) is not None:
+        bev = dbg.bev
+        # Marker edges in the frame (through the BEV's homography, then the camera's distortion).
+        for i, m in enumerate(dbg.markers):
+            used = i in dbg.used
+            k = m.inliers
+            for u, col in ((m.u_left[k], GREEN if used else BLUE), (m.u_right[k], RED if used else BLUE)):
+                p = np.stack([u, m.v[k], np.ones_like(u)], -1) @ bev.image_from_bev.T
+                ok = p[:, 2] > 0
+                uv = p[ok, :2] / p[ok, 2:3]
+                if camera.has_distortion and uv.size:
+                    xn = (uv[:, 0] - camera.cx) / camera.fx
+                    yn = (uv[:, 1] - camera.cy) / camera.fy
+                    xd, yd = camera.distort_normalized(xn, yn)
+                    uv = np.stack([camera.fx * xd + camera.cx, camera.fy * yd + camera.cy], -1)
+                good = np.all(np.isfinite(uv), 1) & (np.abs(uv).max(1) < 1e5)
+                if good.sum() > 1:
+                    cv2.polylines(frame, [_pts(uv[good])], False, col, 1, cv2.LINE_AA)
+        for a, b in getattr(dbg, "image_lines", []) or []:
+            cv2.line(frame, tuple(int(round(x)) for x in a), tuple(int(round(x)) for x in b), YELLOW, 1, cv2.LINE_AA)
+        # BEV panel with the fits and the cross-sections.
+        img = dbg.bev_image
+        if img is not None:
+            b = cv2.cvtColor(np.clip(img, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
+            for i, m in enumerate(dbg.markers):
+                used = i in dbg.used
+                vv = np.arange(int(m.v_far), int(m.v_near) + 1, dtype=float)
+                if vv.size < 2:
+                    continue
+                ul, ur = m.u_at(vv)
+                for u, col in ((ul, GREEN if used else BLUE), (ur, RED if used else BLUE)):
+                    cv2.polylines(b, [_pts(np.stack([u, vv], -1))], False, col, 1, cv2.LINE_AA)
+            if dbg.cross_rows_v is not None:
+                for v in np.atleast_1d(dbg.cross_rows_v):
+                    if np.isfinite(v) and 0 <= v < b.shape[0]:
+                        cv2.line(b, (0, int(round(v))), (b.shape[1] - 1, int(round(v))), YELLOW, 1)
+            cv2.circle(b, (int(round(bev.u0)), b.shape[0] - 1), 4, MAGENTA, -1)
+            scale = H / b.shape[0]
+            bev_panel = cv2.resize(b, (max(1, int(round(b.shape[1] * scale))), H), interpolation=cv2.INTER_NEAREST)
+    # Vanishing point and horizon.
+    if est.valid and all(math.isfinite(v) for v in est.vp_px):
+        vx, vy = est.vp_px
+        if abs(vx) < 1e5 and abs(vy) < 1e5:
+            cv2.drawMarker(frame, (int(round(vx)), int(round(vy))), MAGENTA, cv2.MARKER_CROSS, 20, 2)
+        R = getattr(dbg, "R_o_from_cp", None) if dbg is not None else None
+        if R is not None:
+            # The road plane's points at infinity: directions (cos a, sin a, 0) in the road frame.
+            a = np.radians(np.linspace(-60, 60, 25))
+            d = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], -1) @ R     # in cp
+            d = d[d[:, 2] > 1e-6]
+            if d.shape[0] > 1:
+                uv = camera.project(d)
+                good = np.all(np.isfinite(uv), 1) & (np.abs(uv).max(1) < 1e5)
+                if good.sum() > 1:
+                    cv2.polylines(frame, [_pts(uv[good])], False, CYAN, 1, cv2.LINE_AA)
+    lines = []
+    if est.valid:
+        lines.append("roll %+6.2f  pitch %+5.2f  yaw %+5.2f deg" % tuple(math.degrees(x) for x in est.rpy_rad))
+        lines.append("1-sigma %.2f %.2f %.2f deg  %s  %d lines" % (
+            math.degrees(est.roll_sigma_rad), math.degrees(est.pitch_sigma_rad), math.degrees(est.yaw_sigma_rad),
+            est.roll_equation, est.n_lines))
+    else:
+        lines.append("invalid: " + (est.reason or "?")[:70])
+    if t_s is not None:
+        lines.append(f"t {t_s:.3f} s")
+    scale = max(0.5, H / 900.0)
+    step = int(round(30 * scale)) + 4
+    cv2.rectangle(frame, (0, 0), (int(560 * scale), step * len(lines) + 8), (0, 0, 0), -1)
+    for i, text in enumerate(lines):
+        cv2.putText(frame, text, (8, step * (i + 1)), cv2.FONT_HERSHEY_SIMPLEX, scale, WHITE, 1, cv2.LINE_AA)
+    return np.concatenate([frame, bev_panel], axis=1)
+
+
+class DebugWriter:
+    """Writes :func:`render_debug` pictures to a video (mp4v; ``.avi`` gets MJPG).
+
+    The file is written under a temporary name and renamed by :meth:`close`.
+    """
+
+    def __init__(self, path: str | os.PathLike, fps: float, camera: Camera) -> None:
+        self.path = Path(path)
+        self.tmp = self.path.with_name(self.path.stem + ".partial" + self.path.suffix)
+        self.fps, self.camera = float(fps), camera
+        self.writer = None
+        self.size = None
+
+    def write(self, image: np.ndarray, est: VisionEstimate, t_s: float | None = None) -> None:
+        pic = render_debug(image, est, self.camera, t_s)
+        if self.writer is None:
+            self.size = (pic.shape[1], pic.shape[0])
+            fourcc = cv2.VideoWriter_fourcc(*("MJPG" if self.path.suffix.lower() == ".avi" else "mp4v"))
+            self.writer = cv2.VideoWriter(str(self.tmp), fourcc, self.fps, self.size)
+            if not self.writer.isOpened():
+                raise VisionError(f"{self.path}: OpenCV cannot write this video")
+        if (pic.shape[1], pic.shape[0]) != self.size:
+            pic = cv2.resize(pic, self.size)
+        self.writer.write(pic)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.release()
+            self.writer = None
+            os.replace(self.tmp, self.path)
