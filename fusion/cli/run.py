@@ -1,0 +1,208 @@
+"""``vifusion run``: vision on the video, IMU from the CAN log, fusion, report.
+
+With no input arguments it runs the bundled sample drive (:data:`fusion.drive.SAMPLE_DRIVE`).
+Everything is written into ``OUT.partial`` and renamed to ``OUT`` at the end, so that a run
+that stops half-way never leaves files that look complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "run",
+        help="estimate attitude and road bank of a drive (video + CAN log), with a report",
+        description="Vision on the video, IMU from the CAN log, EKF fusion and road bank angle. "
+        "Without --video/--can/--config it runs the bundled sample drive.",
+    )
+    p.add_argument("--drive", type=Path, help="a drive folder as written by 'vifusion simulate'")
+    p.add_argument("--video", type=Path, help="video file or folder of PNG/JPEG frames")
+    p.add_argument("--frames", type=Path, help="frames.csv (frame,t_s on the CAN clock)")
+    p.add_argument("--can", type=Path, help="CAN log (.asc .blf .log .trc .csv .mf4)")
+    p.add_argument("--dbc", type=Path, help="DBC (overrides [can] dbc of the config)")
+    p.add_argument("--config", type=Path, help="config TOML")
+    p.add_argument("--truth", type=Path, help="truth.csv to compare with (simulated drives)")
+    p.add_argument("--out", type=Path, default=Path("out/run"), help="output folder (default out/run)")
+    p.add_argument("--smooth", action="store_true", help="forward filter plus RTS smoother (offline)")
+    p.add_argument("--estimate-time-offset", action="store_true",
+                   help="estimate the camera-to-CAN clock offset from the data and apply it")
+    p.add_argument("--debug-video", type=Path, help="also write the vision debug video here")
+    p.add_argument("--no-report", action="store_true", help="skip plots and HTML")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.set_defaults(func=run)
+
+
+def _inputs(args):
+    from ..drive import SAMPLE_DRIVE, DriveFiles, find_drive_files
+    from ..errors import InputError
+
+    explicit = [a for a in ("video", "can", "config", "frames") if getattr(args, a) is not None]
+    if args.drive is not None:
+        if explicit:
+            raise InputError(f"--drive cannot be combined with --{explicit[0]}")
+        files = find_drive_files(args.drive)
+    elif not explicit:
+        files = find_drive_files(SAMPLE_DRIVE)
+    else:
+        missing = [a for a in ("video", "can", "config") if getattr(args, a) is None]
+        if missing:
+            raise InputError(f"--{missing[0]} is required with --{explicit[0]} (or give none to run the sample drive)")
+        files = DriveFiles(video=args.video, can_log=args.can, config=args.config, frames=args.frames,
+                           dbc=args.dbc, truth=args.truth).check()
+    if args.truth is not None and files.truth != args.truth:
+        files = DriveFiles(**{**files.__dict__, "truth": args.truth}).check()
+    if args.dbc is not None and files.dbc != args.dbc:
+        files = DriveFiles(**{**files.__dict__, "dbc": args.dbc}).check()
+    return files
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    import pandas as pd
+
+    from imu import read_log
+    from vision.options import options_from_table
+    from vision.video import estimate_video
+
+    from ..config import load_config
+    from ..drive import check_overlap, read_frame_times, read_truth
+    from ..errors import ConfigError, InputError
+    from ..options import fusion_options_from_table
+    from ..pipeline import fuse, plain_bank
+    from ..report import ReportInputs, write_report
+    from ..timing import estimate_camera_offset
+
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    progress = not args.quiet
+    files = _inputs(args)
+    cfg = load_config(files.config)
+    if cfg.can is None:
+        raise ConfigError(f"{files.config}: [can] is missing (the CAN signals of the IMU)")
+    mapping = cfg.can if files.dbc is None else type(cfg.can)(**{**cfg.can.__dict__, "dbc_path": files.dbc})
+    vision_opts = options_from_table(cfg.extra.get("vision"), str(files.config))
+    fusion_opts, settings = fusion_options_from_table(cfg.extra.get("fusion"), str(files.config))
+    smooth = args.smooth or settings.smooth
+    offset_s = settings.camera_time_offset_s
+    truth = read_truth(files.truth)
+    imu_truth = read_truth(files.imu_truth)
+    out, tmp = args.out, args.out.with_name(args.out.name + ".partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    timings["start-up"] = time.perf_counter() - t_start
+
+    # CAN first: it is cheap and fails fast on a bad log or mapping.
+    t0 = time.perf_counter()
+    imu, summary = read_log(files.can_log, mapping, cfg.imu, progress=progress)
+    timings["CAN decode"] = time.perf_counter() - t0
+    unavailable = set(imu.attrs.get("unavailable", ()))
+    essential = {"gyro_x_rad_s", "gyro_z_rad_s", "accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2", "speed_m_s"}
+    never = [c for c in ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s", "accel_x_m_s2", "accel_y_m_s2",
+                         "accel_z_m_s2", "speed_m_s") if c not in unavailable and not np.isfinite(imu[c]).any()]
+    missing = sorted((unavailable | set(never)) & essential)
+    if missing:
+        raise InputError(f"{files.can_log}: IMU channel {missing[0]} never seen (needed by the filter; "
+                         f"mapped as {mapping.signals.get(missing[0].split('_')[0] + '_' + missing[0].split('_')[1], '?')})")
+    has_pitch_rate = "gyro_y_rad_s" not in unavailable and "gyro_y_rad_s" not in never
+    if not has_pitch_rate:
+        warnings.append("no pitch-rate channel: pitch rate reconstructed as yaw rate * tan(roll)")
+    if not imu.attrs.get("complete", True):
+        warnings.append(f"{files.can_log}: log incomplete ({imu.attrs.get('summary', {}).get('stopped', 'truncated')})")
+    for g in imu.attrs.get("gaps", [])[:5]:
+        warnings.append(f"CAN gap: {g}")
+
+    frames = read_frame_times(files.frames, cfg.video, None if files.frames else _count_frames(files.video))
+    check_overlap(frames["t_s"].to_numpy() + offset_s, imu["t_s"].to_numpy(),
+                  str(files.frames or files.video), str(files.can_log))
+
+    t0 = time.perf_counter()
+    vision, vstats = estimate_video(files.video, frames, cfg.camera, cfg.mount, cfg.road, vision_opts,
+                                    progress=progress, debug_video=args.debug_video)
+    timings["vision"] = time.perf_counter() - t0
+    if vstats.get("frames_missing"):
+        warnings.append(f"{files.video}: has {vstats['frames_read']} frames, frames.csv lists {len(frames)}; "
+                        f"the last {vstats['frames_missing']} were not processed")
+    _write_csv(vision, tmp / "vision.csv")
+
+    time_offset = None
+    if args.estimate_time_offset or settings.estimate_time_offset:
+        est = estimate_camera_offset(vision, imu)
+        time_offset = {"offset_s": est.offset_s, "correlation": est.correlation, "frames": est.n_frames,
+                       "reason": est.reason}
+        if est.ok:
+            offset_s += est.offset_s
+        else:
+            warnings.append(f"camera time offset not estimable: {est.reason}")
+
+    t0 = time.perf_counter()
+    fused = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, has_pitch_rate=has_pitch_rate, options=fusion_opts,
+                 smooth=smooth, camera_time_offset_s=offset_s, progress=progress)
+    imu_only = fuse(imu, None, lever_arm_m=cfg.imu.position_m, has_pitch_rate=has_pitch_rate, options=fusion_opts)
+    pb = plain_bank(imu_only.fused, vision, offset_s)
+    table = fused.fused.copy()
+    table["roll_world_imu_only_deg"] = imu_only.fused["roll_world_deg"].to_numpy()
+    table["bank_plain_deg"] = np.interp(table["t_s"], pb["t_s"], pb["bank_plain_deg"]) if len(pb) else np.nan
+    timings["fusion"] = time.perf_counter() - t0
+    warnings += fused.warnings
+    _write_csv(table, tmp / "fused.csv")
+
+    summary_out = None
+    if not args.no_report:
+        t0 = time.perf_counter()
+        summary_out = write_report(ReportInputs(
+            fused=fused.fused, vision=vision, imu_only=imu_only.fused, plain_bank=pb, truth=truth,
+            imu_truth=imu_truth, cov=fused.cov, counts={**fused.counts, "can": summary.as_dict().get("totals", {})},
+            timings_s=timings, time_offset=time_offset, warnings=warnings, smoothed=smooth,
+            title=f"vifusion run: {files.video.name}", camera_time_offset_s=offset_s), tmp / "report")
+        timings["report"] = time.perf_counter() - t0
+
+    if out.exists():
+        shutil.rmtree(out)
+    tmp.rename(out)
+    _print_summary(out, files, frames, imu, timings, warnings, summary_out, time_offset, time.perf_counter() - t_start)
+    return 0
+
+
+def _count_frames(video: Path) -> int:
+    from vision.video import count_frames
+
+    return count_frames(video)
+
+
+def _write_csv(df, path: Path) -> None:
+    import os
+
+    tmp = path.with_name(path.name + ".partial")
+    df.to_csv(tmp, index=False, float_format="%.6f")
+    os.replace(tmp, path)
+
+
+def _print_summary(out, files, frames, imu, timings, warnings, summary, time_offset, total_s) -> None:
+    drive_s = float(frames["t_s"].iloc[-1] - frames["t_s"].iloc[0]) if len(frames) > 1 else math.nan
+    print(f"wrote {out}/vision.csv, {out}/fused.csv" + ("" if summary is None else f", {out}/report/report.html"))
+    fixed = timings.get("start-up", 0.0) + timings.get("report", 0.0)
+    per_drive = total_s - fixed
+    print(f"time: total {total_s:.1f} s for a {drive_s:.1f} s drive; fixed costs {fixed:.1f} s "
+          f"(start-up {timings.get('start-up', 0):.1f}, report {timings.get('report', 0):.1f}); "
+          f"the rest {per_drive:.1f} s = {100 * per_drive / drive_s:.1f} % of the drive's duration "
+          f"(vision {timings.get('vision', 0):.1f}, CAN {timings.get('CAN decode', 0):.1f}, fusion {timings.get('fusion', 0):.1f})")
+    if time_offset:
+        print(f"camera time offset estimate: {time_offset}")
+    if summary and summary.get("rmse_deg"):
+        for src, vals in summary["rmse_deg"].items():
+            cells = ", ".join(f"{k} {v:.3f}" for k, v in vals.items() if isinstance(v, float) and k != "valid_fraction")
+            print(f"RMSE vs truth [deg] {src}: {cells}")
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)

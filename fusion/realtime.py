@@ -1,0 +1,80 @@
+"""Embedding in a vehicle: raw CAN messages and camera frames in, the latest estimate out.
+
+:class:`LiveFusion` joins the three streaming parts: :class:`imu.StreamDecoder` (CAN frames
+to IMU samples, the same decode as the log path), :class:`vision.estimator.Estimator` (one
+frame to roll, pitch, yaw relative to the road) and :class:`fusion.engine.FusionStream` (the
+EKF). Frames may be handed in late, after the CAN samples of their capture time, as a vision
+thread that takes longer than an IMU interval would: the filter rolls back and re-propagates.
+
+Example (a live bus; ``frames`` yields (capture time on the bus clock, image))::
+
+    live = LiveFusion(load_config("config.toml"))
+    for msg in bus:                       # python-can messages
+        live.push_can(msg)
+        ...
+        live.push_frame(t_s, image)       # whenever a frame has been captured
+        est = live.estimate()             # Estimate with 1-sigma, rad
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from imu import StreamDecoder
+from vision.estimator import Estimator, VisionEstimate
+from vision.options import options_from_table
+
+from .config import DriveConfig
+from .engine import Estimate, FusionStream
+from .errors import ConfigError
+from .options import fusion_options_from_table
+
+__all__ = ["LiveFusion"]
+
+
+class LiveFusion:
+    """CAN messages and frames in, :class:`fusion.engine.Estimate` out; see the module docstring."""
+
+    def __init__(self, config: DriveConfig) -> None:
+        if config.can is None:
+            raise ConfigError("LiveFusion needs the [can] table of the config")
+        source = str(config.path or "config")
+        fusion_opts, self.settings = fusion_options_from_table(config.extra.get("fusion"), source)
+        self.decoder = StreamDecoder(config.can, config.imu)
+        self.has_pitch_rate = "gyro_y_rad_s" not in self.decoder.unavailable
+        self.vision = Estimator(config.camera, config.mount, config.road,
+                                options_from_table(config.extra.get("vision"), source))
+        self.stream = FusionStream(config.imu.position_m, self.has_pitch_rate, fusion_opts)
+        self.samples = 0
+
+    def push_can(self, msg, received_s: float | None = None) -> int:
+        """One CAN message (python-can ``Message``); returns how many IMU samples it released."""
+        n = 0
+        for s in self.decoder.push(msg, received_s):
+            gyro = (s.gyro_x_rad_s, 0.0 if not self.has_pitch_rate else s.gyro_y_rad_s, s.gyro_z_rad_s)
+            accel = (s.accel_x_m_s2, s.accel_y_m_s2, s.accel_z_m_s2)
+            if not (np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
+                continue  # an incomplete sample: the filter waits for the next one
+            self.stream.add_imu(s.t_s, gyro, accel, s.speed_m_s, s.fresh_speed)
+            n += 1
+        self.samples += n
+        return n
+
+    def push_frame(self, t_s: float, image) -> VisionEstimate:
+        """A camera frame captured at ``t_s`` (bus clock, before the configured camera offset)."""
+        est = self.vision.estimate(image)
+        self.push_vision(t_s, est)
+        return est
+
+    def push_vision(self, t_s: float, est: VisionEstimate) -> None:
+        """A vision result computed elsewhere (another thread or process)."""
+        self.stream.add_vision(t_s + self.settings.camera_time_offset_s, est.rpy_rad,
+                               (est.roll_sigma_rad, est.pitch_sigma_rad, est.yaw_sigma_rad), est.valid,
+                               est.curvature_1_m, est.lateral_offset_m,
+                               getattr(est, "curvature_sigma_1_m", math.nan))
+
+    def estimate(self) -> Estimate:
+        """The latest estimate (after the newest IMU sample), with 1-sigma."""
+        return self.stream.estimate()

@@ -1,0 +1,148 @@
+"""``vifusion run`` end to end on small simulated drives, and its answers to bad input: one
+line, exit status 2, no output folder that looks complete; or a warning when it can go on."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from fusion.drive import SAMPLE_DRIVE
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "configs" / "scenarios" / "test" / "tiny_banked_curve.toml"
+
+
+def vifusion(*args):
+    return subprocess.run([sys.executable, "-m", "fusion", *map(str, args)], capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    d = tmp_path_factory.mktemp("run") / "drive"
+    r = vifusion("simulate", TINY, "--out", d, "--quiet")
+    assert r.returncode == 0, r.stderr
+    return d
+
+
+@pytest.fixture
+def copy(drive, tmp_path):
+    d = tmp_path / "drive"
+    shutil.copytree(drive, d)
+    return d
+
+
+def one_line_error(r, *words):
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), r.stderr
+    assert "Traceback" not in r.stderr
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+
+
+def test_run_writes_the_contract_outputs(drive, tmp_path):
+    out = tmp_path / "out"
+    r = vifusion("run", "--drive", drive, "--out", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    vision = pd.read_csv(out / "vision.csv")
+    assert list(vision.columns[:6]) == ["t_s", "frame", "roll_deg", "pitch_deg", "yaw_deg", "valid"]
+    assert len(vision) == 30
+    fused = pd.read_csv(out / "fused.csv")
+    for c in ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_world_deg", "roll_sigma_deg",
+              "bank_sigma_deg", "bank_plain_deg", "roll_world_imu_only_deg"):
+        assert c in fused.columns, c
+    # one row per IMU sample (100 Hz over 2 s), no NaN in the estimates
+    assert 195 <= len(fused) <= 201
+    assert np.isfinite(fused[["roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_sigma_deg"]].to_numpy()).all()
+    summary = json.loads((out / "report" / "summary.json").read_text())
+    assert "rmse_deg" in summary and "fused" in summary["rmse_deg"]
+    html = (out / "report" / "report.html").read_text()
+    assert "data:image/png;base64" in html
+    for png in ("attitude.png", "world.png", "errors.png", "biases.png"):
+        assert (out / "report" / png).stat().st_size > 10_000
+    assert not out.with_name("out.partial").exists()
+
+
+def test_run_without_inputs_processes_the_bundled_sample(tmp_path):
+    out = tmp_path / "sample"
+    r = vifusion("run", "--out", out, "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    fused = pd.read_csv(out / "fused.csv")
+    assert fused["t_s"].iloc[-1] - fused["t_s"].iloc[0] > 11.0
+    # the drive ends in a curve banked 6 deg: the fused bank says so within a degree
+    assert fused["bank_deg"].iloc[-1] == pytest.approx(6.0, abs=1.0)
+
+
+def test_shipped_sample_drive_is_what_the_simulator_makes(tmp_path):
+    """The bundled sample drive must not drift from its scenario: re-simulated (without video)
+    its truth and IMU truth are identical."""
+    fresh = tmp_path / "sample"
+    r = vifusion("simulate", SAMPLE_DRIVE / "scenario.toml", "--out", fresh, "--no-video", "--quiet")
+    assert r.returncode == 0, r.stderr
+    for f in ("truth.csv", "imu_truth.csv", "frames.csv", "config.toml"):
+        a, b = (SAMPLE_DRIVE / f).read_text(), (fresh / f).read_text()
+        assert a.replace(str(SAMPLE_DRIVE), "") == b.replace(str(fresh), ""), f
+
+
+def test_missing_file(drive, tmp_path):
+    r = vifusion("run", "--video", drive / "video.mp4", "--can", tmp_path / "nope.blf", "--config",
+                 drive / "config.toml", "--out", tmp_path / "out")
+    one_line_error(r, "nope.blf")
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
+
+
+def test_config_key_of_the_wrong_type(copy, tmp_path):
+    cfg = copy / "config.toml"
+    cfg.write_text(cfg.read_text().replace("height_m = 1.1", 'height_m = "tall"'))
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "height_m")
+
+
+def test_no_overlap_between_video_and_can(copy, tmp_path):
+    frames = pd.read_csv(copy / "frames.csv")
+    frames["t_s"] += 1000.0
+    frames.to_csv(copy / "frames.csv", index=False)
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "no overlap")
+    assert not (tmp_path / "out").exists()
+
+
+def test_imu_channel_never_seen(copy, tmp_path):
+    # A speed message that the DBC describes but no node ever sends.
+    dbc = copy / "vifusion_imu.dbc"
+    dbc.write_text(dbc.read_text().replace(
+        "BO_ 290 ABS_SPEED:",
+        'BO_ 1792 ABS_SPEED_AUX: 8 ABS\n SG_ Speed : 0|16@1+ (0.01,0) [0|655.34] "km/h" ECU\n\nBO_ 290 ABS_SPEED:', 1))
+    cfg = copy / "config.toml"
+    cfg.write_text(cfg.read_text().replace('speed = "ABS_SPEED.WheelSpeedFront"', 'speed = "ABS_SPEED_AUX.Speed"'))
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out")
+    one_line_error(r, "speed")
+    assert not (tmp_path / "out").exists()
+
+
+def test_video_shorter_than_frames_csv_is_a_warning(copy, tmp_path):
+    frames = pd.read_csv(copy / "frames.csv")
+    extra = pd.DataFrame({"frame": np.arange(30, 40), "t_s": frames["t_s"].iloc[-1] + np.arange(1, 11) / 15.0})
+    pd.concat([frames, extra]).to_csv(copy / "frames.csv", index=False, float_format="%.6f")
+    out = tmp_path / "out"
+    r = vifusion("run", "--drive", copy, "--out", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "warning:" in r.stderr and "frames" in r.stderr
+    summary = json.loads((out / "report" / "summary.json").read_text())
+    assert any("10 were not processed" in w for w in summary["warnings"])
+
+
+def test_frames_csv_not_increasing(copy, tmp_path):
+    frames = pd.read_csv(copy / "frames.csv")
+    frames.loc[5, "t_s"] = frames.loc[3, "t_s"]
+    frames.to_csv(copy / "frames.csv", index=False, float_format="%.6f")
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "frames.csv", "increase")
+
+
+def test_corrupt_can_log(copy, tmp_path):
+    (copy / "can.asc").write_bytes(b"\x00\xff garbage\n" * 50)
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out")
+    assert r.returncode == 2 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
