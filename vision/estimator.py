@@ -16,7 +16,7 @@ What the round trip against the simulator decided (tests/test_vision_estimator.p
   widths give the XYZ roll ``phi1`` directly. The BEV of the fixed mount (roll 0, pitch = tilt)
   differs by ``Ry(mu) (Rx(phi1) Ry(theta1) Rz(psi1))^T``, which for ``theta1 = mu, psi1 = 0`` is
   again ``Rx(-phi1)``. The paper reads it as the ZYX roll and converts it with eq. (21); that
-  conversion is a slip (0.64 deg at 20 deg lean with mu = 15 deg), kept as ``eq21=True`` in the
+  conversion is a slip (0.63 deg at 20 deg lean with mu = 15 deg), kept as ``eq21=True`` in the
   paper preset to measure it.
 * Eq. (8)'s root is the BEV's residual roll ``phi_bev - phi1`` (:mod:`vision.roll`).
 * The camera rolls with the vehicle about the contact point, so its height above the road is
@@ -280,6 +280,8 @@ class Estimator:
         self.lane_options = LaneOptions(edges=o.edges if not coarse else "subpixel", fit_degree=o.fit_degree)
         self.lut = _undistort_lut(camera)
         self.last: VisionEstimate | None = None
+        self._R_cs_from_v = Ry(mount.tilt_rad).T
+        self._height_memo: dict = {}
 
     # ---- public ----
 
@@ -376,9 +378,16 @@ class Estimator:
         return camera_xyz_from_vehicle(roll, pitch, yaw, self.mount.tilt_rad)
 
     def height_of(self, phi1, theta1, psi1) -> tuple[float, np.ndarray]:
-        _, R_o_from_v = vehicle_from_camera_xyz(phi1, theta1, psi1, self.mount.tilt_rad)
-        off = _camera_offset(R_o_from_v, self.mount)
-        return float(off[2]), R_o_from_v
+        """Camera height above the road (m) and ``R_o_from_v`` for the camera's XYZ angles."""
+        key = (float(phi1), float(theta1), float(psi1))
+        hit = self._height_memo.get(key)
+        if hit is None:
+            R_o_from_v = matrix_from_euler("xyz", *key) @ self._R_cs_from_v
+            hit = (float(R_o_from_v[2] @ self.mount.position_v), R_o_from_v)
+            if len(self._height_memo) > 64:
+                self._height_memo.clear()
+            self._height_memo[key] = hit
+        return hit
 
     def _alrazouk(self, gray, seed_rpy, keep_debug, seed_est: "VisionEstimate | None" = None) -> VisionEstimate:
         pose = self._initial_pose(seed_rpy)
@@ -399,7 +408,7 @@ class Estimator:
         return result
 
     def _seeded_grid(self, seed: "VisionEstimate | None", pose) -> BevGrid | None:
-        """The BEV grid narrowed to the seed's lines (1.5 m beyond the outer ones, widened by
+        """The BEV grid narrowed to the seed's lines (1.2 m beyond the outer ones, widened by
         the curvature's drift over the range), or None without a seed that knows its lines."""
         o = self.options
         if seed is None or not seed.line_offsets_m or o.ipm_pose != "seed" or not o.narrow_bev:
@@ -409,8 +418,8 @@ class Estimator:
         cam_y = float(_camera_offset(R_o_from_v, self.mount)[1])
         ys = np.asarray(seed.line_offsets_m) - cam_y
         drift = 0.5 * seed.curvature_1_m * g.x_max_m**2
-        lo = float(ys.min()) + min(0.0, drift) - 1.5
-        hi = float(ys.max()) + max(0.0, drift) + 1.5
+        lo = float(ys.min()) + min(0.0, drift) - 1.2
+        hi = float(ys.max()) + max(0.0, drift) + 1.2
         lo, hi = max(lo, g.y_min_m), min(hi, g.y_max_m)
         if hi - lo < 3.0 or (hi - lo) > 0.9 * (g.y_max_m - g.y_min_m):
             return None
@@ -592,6 +601,9 @@ class Estimator:
             valid, reason = False, "non-finite result"
         elif abs(roll) > math.radians(65) or abs(pitch) > math.radians(25) or abs(yaw) > math.radians(45):
             valid, reason = False, "attitude out of range (roll 65, pitch 25, yaw 45 deg)"
+        else:
+            reason = self._implausible(model, n_lines, spacing)
+            valid = not reason
         return VisionEstimate(
             roll, pitch, yaw, s_roll, s_pitch, s_yaw, valid,
             curvature_1_m=curvature, curvature_sigma_1_m=curvature_sigma, lateral_offset_m=lateral,
@@ -602,6 +614,23 @@ class Estimator:
             method=o.method, reason=reason, debug=dbg)
 
     # ---- pieces ----
+
+    def _implausible(self, model: LaneModel, n_lines: int, spacing: float) -> str:
+        """Why the lines found do not look like the road's markings at this pose ("" if they do):
+        each marker's width on the road within half to twice the configured one, and the lines
+        0.5 to 3 lane widths apart. A curb or a rail taken for a line, or eq. (8) balancing two
+        markers of different widths at an absurd roll, shows up here."""
+        road = self.road
+        expected = [road.marker_widths_m[0], road.marker_widths_m[1], road.marker_widths_m[2]]
+        which = [0, 2] if n_lines == 2 else [0, 1, 2]
+        for j, k in enumerate(which):
+            w = float(model.a[2 * j] - model.a[2 * j + 1])
+            if not 0.5 * expected[k] <= w <= 2.0 * expected[k]:
+                return (f"line {j + 1} of {n_lines} is {100 * w:.0f} cm wide on the road, "
+                        f"expected {100 * expected[k]:.0f} cm")
+        if not 0.5 * road.lane_width_m <= spacing <= 3.0 * road.lane_width_m:
+            return f"lines {spacing:.2f} m apart, expected 0.5 to 3 lane widths ({road.lane_width_m:g} m)"
+        return ""
 
     def _solve_roll(self, alphas: np.ndarray, coef: np.ndarray, seed: float = 0.0) -> float:
         if self.options.solver == "numeric":

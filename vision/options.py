@@ -38,7 +38,7 @@ class EstimatorOptions:
         resolution at a third of the range (1 to 4 cm) and 0.1 m rows; a BEV that only finds the
         markers for the image measurement is twice as coarse with 0.2 m rows.
     narrow_bev : bool
-        With a seed that knows its lines, warp only the part of the BEV around them (1.5 m
+        With a seed that knows its lines, warp only the part of the BEV around them (1.2 m
         beyond the outer lines plus the curvature's drift), and the whole width only if a line
         is lost there. Speed only: the lines and their measurement are the same.
 

@@ -27,10 +27,12 @@ Corrections to the paper, decided by round trip (tests/test_vision_roll.py):
 * the Pade numerator is ``N(x) = x - x^3 / 9 + x^5 / 945`` (the [5/4] approximant of tan,
   ``(945 x - 105 x^3 + x^5) / (945 - 420 x^2 + 15 x^4)``); the paper prints ``5/9`` for the cubic
   coefficient, which makes ``N/D = x - 2 x^3 / 9 + ...`` instead of ``x + x^3 / 3 + ...``;
-* eq. (14), the error bound, divides by ``q(a') + q(b') + q(c') + q(d')`` (the sum of
+* eq. (14)'s derivation divides by ``q(a') + q(b') + q(c') + q(d')`` (the sum of
   ``|dg/dphi|``), but ``f`` depends on ``phi`` through the *signed* sum
   ``-sum_k c_k sec^2(alpha_k - phi)``, which nearly cancels (it is of the order of the marker
-  width over ``H`` times ``tan alpha``): the bound as printed is 10 to 50 times too small.
+  width over ``H`` times ``tan alpha``): the expression before the final inequalities is 10 to
+  50 times too small (the final ``dp / f_vx`` happens to be loose enough to land near the right
+  order for the second term; the first term, ``w_pix / (4 W_met) dw``, is not even in radians).
   :func:`roll_sigma` propagates the edge errors through the signed derivative (first order,
   implicit function) and keeps eq. (14) as printed in :func:`roll_bound_eq14`;
 * the sign of the recovered angle: ``phi`` solving eq. (8) is the BEV's residual roll
