@@ -1,0 +1,114 @@
+"""``vifusion vision`` and the frame sources: files in, vision.csv out, one-line errors."""
+
+import math
+import tomllib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from drivesim.drive import build_road, render_frames, truth_frame
+from drivesim.scenario import parse_scenario
+from drivesim.trajectory import Trajectory
+from fusion.cli import main
+from vision.errors import VisionError
+from vision.video import VISION_COLUMNS, FrameSource, count_frames
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    """Five 640x360 frames of Table I scenario 1 as PNGs, frames.csv, a config, the truth."""
+    root = tmp_path_factory.mktemp("drive")
+    data = tomllib.loads((ROOT / "configs" / "scenarios" / "alrazouk_s1_hd.toml").read_text())
+    data["camera"]["width"], data["camera"]["height"] = 640, 360
+    sc = parse_scenario(data, "s1_small")
+    road = build_road(sc)
+    traj = Trajectory(road, sc.motion)
+    t = 2.0 + np.arange(5) / 30.0
+    (root / "frames").mkdir()
+    for i, img in enumerate(render_frames(sc, t, road=road, traj=traj)):
+        cv2.imwrite(str(root / "frames" / f"{i:04d}.png"), img)
+    pd.DataFrame({"frame": np.arange(5), "t_s": 100.0 + t}).to_csv(root / "frames.csv", index=False)
+    c = sc.camera
+    (root / "config.toml").write_text(
+        f"[camera]\nwidth = {c.width}\nheight = {c.height}\nfx = {c.fx}\nfy = {c.fy}\ncx = {c.cx}\ncy = {c.cy}\n"
+        f"[mount]\nheight_m = 1.1\ntilt_deg = 15.0\n"
+        f"[road]\nlane_width_m = 3.5\nmarker_width_m = 0.15\ncenter_line = false\n"
+        f"[video]\nfps = 30.0\nstart_s = 5.0\n")
+    truth = truth_frame(traj, t, t)
+    return root, truth
+
+
+def test_vision_command_writes_the_table(drive, tmp_path):
+    root, truth = drive
+    out = tmp_path / "vision.csv"
+    dbg = tmp_path / "debug.avi"
+    rc = main(["vision", "--video", str(root / "frames"), "--frames", str(root / "frames.csv"),
+               "--config", str(root / "config.toml"), "--out", str(out), "--debug-video", str(dbg), "--quiet"])
+    assert rc == 0
+    v = pd.read_csv(out)
+    assert tuple(v.columns) == VISION_COLUMNS
+    assert list(v.columns[:6]) == ["t_s", "frame", "roll_deg", "pitch_deg", "yaw_deg", "valid"]
+    assert len(v) == 5 and v["valid"].all()
+    assert v["t_s"].to_numpy() == pytest.approx(100.0 + 2.0 + np.arange(5) / 30.0)
+    # The same tolerances as the rendered tests (640x360): roll 0.6 deg, pitch 0.05 deg.
+    assert np.abs(v["roll_deg"] - truth["roll_deg"]).max() < 0.6
+    assert np.abs(v["pitch_deg"] - truth["pitch_deg"]).max() < 0.05
+    assert not (tmp_path / "vision.csv.partial").exists()
+    cap = cv2.VideoCapture(str(dbg))
+    ok, pic = cap.read()
+    cap.release()
+    assert ok and pic.shape[0] == 360 and pic.shape[1] > 640
+
+
+def test_frame_times_from_the_config_without_frames_csv(drive, tmp_path):
+    root, _ = drive
+    out = tmp_path / "v.csv"
+    assert main(["vision", "--video", str(root / "frames"), "--config", str(root / "config.toml"),
+                 "--out", str(out), "--quiet", "--method", "alrazouk"]) == 0
+    assert pd.read_csv(out)["t_s"].to_numpy() == pytest.approx(5.0 + np.arange(5) / 30.0)
+
+
+def test_missing_video_is_a_one_line_error(drive, tmp_path, capsys):
+    root, _ = drive
+    rc = main(["vision", "--video", str(tmp_path / "nope.mp4"), "--config", str(root / "config.toml"),
+               "--out", str(tmp_path / "v.csv")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.startswith("error: ") and "nope.mp4" in err and "\n" not in err
+
+
+def test_unreadable_frame_names_the_file(drive, tmp_path, capsys):
+    root, _ = drive
+    bad = tmp_path / "frames"
+    bad.mkdir()
+    (bad / "0000.png").write_bytes((root / "frames" / "0000.png").read_bytes())
+    (bad / "0001.png").write_bytes(b"not a png")
+    rc = main(["vision", "--video", str(bad), "--config", str(root / "config.toml"), "--out", str(tmp_path / "v.csv"),
+               "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "0001.png" in err
+
+
+def test_frame_source_order_and_errors(tmp_path):
+    for name in ("b.png", "a.jpg", "c.txt"):
+        img = np.full((4, 6, 3), 7 if name.startswith("a") else 9, np.uint8)
+        if name.endswith("txt"):
+            (tmp_path / name).write_text("x")
+        else:
+            cv2.imwrite(str(tmp_path / name), img)
+    src = FrameSource(tmp_path)
+    assert [p.name for p in src.files] == ["a.jpg", "b.png"] and len(src) == 2 and count_frames(tmp_path) == 2
+    with pytest.raises(VisionError, match="no such"):
+        FrameSource(tmp_path / "missing")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(VisionError, match="no .png"):
+        FrameSource(empty)
+    junk = tmp_path / "junk.mp4"
+    junk.write_bytes(b"\x00" * 100)
+    with pytest.raises(VisionError, match="cannot open"):
+        FrameSource(junk)

@@ -1,0 +1,127 @@
+"""Real frames recorded by others (../shared/data, see its README): KITTI with OXTS truth and the
+Udacity highway frames. The estimator finds the lanes or says why not, never raises; on KITTI
+its pitch, brought into the IMU frame with the calibration files, agrees with OXTS."""
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from vision import Camera, Mount, RoadMarkings
+from vision.estimator import Estimator, _R_o_from_cp
+from vision.frames import rpy_from_R
+from vision.options import EstimatorOptions
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+KITTI = DATA / "kitti_2011_09_26_drive_0001"
+UDACITY = DATA / "udacity_advanced_lane_lines"
+
+pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
+
+
+def _calib(name: str) -> dict:
+    out = {}
+    for line in (KITTI / name).read_text().splitlines():
+        key, _, value = line.partition(":")
+        try:
+            out[key.strip()] = np.array([float(x) for x in value.split()])
+        except ValueError:
+            pass
+    return out
+
+
+def kitti_setup():
+    """Camera 02 (rectified, P_rect_02), the rotation from the OXTS IMU frame (x forward, y left,
+    z up) to the rectified camera frame (R_rect_00 R_velo_to_cam R_imu_to_velo), and a mount
+    1.65 m high (KITTI setup) tilted as the calibration says."""
+    c2c, i2v, v2c = _calib("calib_cam_to_cam.txt"), _calib("calib_imu_to_velo.txt"), _calib("calib_velo_to_cam.txt")
+    R_cp_from_imu = c2c["R_rect_00"].reshape(3, 3) @ v2c["R"].reshape(3, 3) @ i2v["R"].reshape(3, 3)
+    P = c2c["P_rect_02"].reshape(3, 4)
+    camera = Camera(1242, 375, P[0, 0], P[1, 1], P[0, 2], P[1, 2])
+    axis = R_cp_from_imu.T @ np.array([0.0, 0.0, 1.0])
+    mount = Mount(1.65, math.atan2(-axis[2], axis[0]))
+    return camera, mount, R_cp_from_imu
+
+
+def kitti_results():
+    camera, mount, R_cp_from_imu = kitti_setup()
+    est = Estimator(camera, mount, RoadMarkings(3.5, 0.12, False), EstimatorOptions())
+    rows = []
+    for f in sorted((KITTI / "2011_09_26_drive_0001_sync" / "image_02" / "data").glob("*.png")):
+        i = int(f.stem)
+        oxts = np.array([float(x) for x in (KITTI / "2011_09_26_drive_0001_sync" / "oxts" / "data" /
+                                            f"{i:010d}.txt").read_text().split()])
+        e = est.estimate(cv2.imread(str(f)))
+        if e.valid:
+            # The IMU's attitude relative to the road: R_o_from_imu = R_o_from_cp R_cp_from_imu;
+            # ZYX roll (left side up positive) and pitch (front down positive): KITTI's convention.
+            roll, pitch, _ = rpy_from_R(_R_o_from_cp(*e.camera_xyz_rad) @ R_cp_from_imu)
+            rows.append((i, True, math.degrees(roll), math.degrees(pitch), math.degrees(oxts[3]), math.degrees(oxts[4])))
+        else:
+            rows.append((i, False, e.reason, None, math.degrees(oxts[3]), math.degrees(oxts[4])))
+    return rows
+
+
+@pytest.fixture(scope="module")
+def kitti():
+    return kitti_results()
+
+
+def test_kitti_runs_and_finds_lanes(kitti):
+    """Ten real frames: lanes or a reason, no exception; lanes on some frames."""
+    assert len(kitti) == 10
+    assert all(r[1] or r[2] for r in kitti)
+    assert sum(r[1] for r in kitti) >= 3
+
+
+def test_kitti_pitch_agrees_with_oxts(kitti):
+    """Pitch relative to the road against OXTS pitch relative to level: within 2 deg (the road's
+    grade accounts for the difference; over these frames it is within 0.4 deg)."""
+    for i, valid, roll, pitch, oxts_roll, oxts_pitch in kitti:
+        if valid:
+            assert abs(pitch - oxts_pitch) < 2.0, (i, pitch, oxts_pitch)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "eq. (8) needs the two markers' widths equal or known to a few mm; on this road the lines "
+    "found differ (the solid line measures about 24 cm, the dashed one 14 cm) and the curb on the "
+    "right can pass for a line: roll is off by 3 to 5 deg on the three frames that pass the checks"))
+def test_kitti_roll_agrees_with_oxts(kitti):
+    for i, valid, roll, pitch, oxts_roll, oxts_pitch in kitti:
+        if valid:
+            assert abs(roll - oxts_roll) < 2.0, (i, roll, oxts_roll)
+
+
+def udacity_camera() -> Camera:
+    """Calibrated from the 9x6 chessboards of the same camera (OpenCV, 17 of 20 boards found)."""
+    objp = np.zeros((54, 3), np.float32)
+    objp[:, :2] = np.mgrid[0:9, 0:6].T.reshape(-1, 2)
+    obj, pts = [], []
+    for f in sorted((UDACITY / "camera_cal").glob("*.jpg")):
+        g = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        ok, corners = cv2.findChessboardCorners(g, (9, 6), flags=cv2.CALIB_CB_FAST_CHECK | cv2.CALIB_CB_ADAPTIVE_THRESH)
+        if ok:
+            obj.append(objp)
+            pts.append(corners)
+    _, K, dist, _, _ = cv2.calibrateCamera(obj, pts, (1280, 720), None, None)
+    return Camera(1280, 720, K[0, 0], K[1, 1], K[0, 2], K[1, 2], tuple(float(x) for x in dist.ravel()[:5]))
+
+
+def test_udacity_frames_give_lanes_or_reasons():
+    """Eight highway frames, lens distortion folded into the BEV warp. Mounting height and tilt
+    are not known (1.5 m, level assumed): lanes on most frames, plausible geometry where found
+    (lines 2.5 to 6 m apart, a near-level camera), a reason otherwise, no exception."""
+    camera = udacity_camera()
+    est = Estimator(camera, Mount(1.5, 0.0), RoadMarkings(3.7, 0.15, False), EstimatorOptions())
+    valid = 0
+    for f in sorted((UDACITY / "test_images").glob("*.jpg")):
+        e = est.estimate(cv2.imread(str(f)), seed=(0.0, 0.0, 0.0))
+        if e.valid:
+            valid += 1
+            assert 2.5 < e.line_spacing_m < 6.0
+            assert abs(math.degrees(e.pitch_rad)) < 5.0
+        else:
+            assert e.reason
+    assert valid >= 4
