@@ -198,31 +198,27 @@ def configs(quick: bool):
 
     paper = EstimatorOptions.paper()
     out = {
+        # this estimator, and the paper's plain method
         "default": EstimatorOptions(),
         "paper": paper,
+        # the paper's method with one improvement switched on
         "paper+area-edges": replace(paper, edges="area"),
         "paper+subpixel-edges": replace(paper, edges="subpixel"),
         "paper+no-eq21": replace(paper, eq21=False),
         "paper+9-sections": replace(paper, cross_sections=9, solver="numeric"),
-        "paper+tangent-vp": replace(paper, vp="tangent", refine_iterations=1),
-        "paper+refine": replace(paper, refine_iterations=3, eq21=False, ipm_pose="seed", rewarp_deg=2.0,
-                                max_warps=3),
-        "paper+widths": replace(paper, known_widths=True),
+        "paper+known-widths": replace(paper, known_widths=True),
+        "paper+refine": replace(paper, refine_iterations=2, eq21=False, ipm_pose="seed", rewarp_deg=2.0,
+                                max_warps=3, fit_range_m=100.0),
+        # this estimator with one improvement switched off (or changed)
         "default-pade": EstimatorOptions(solver="pade"),
         "default-1-section": EstimatorOptions(cross_sections=1),
         "default-subpixel": EstimatorOptions(edges="subpixel"),
+        "default-binary": EstimatorOptions(edges="binary"),
         "default-lines-vp": EstimatorOptions(vp="lines"),
-        "default-no-refine": EstimatorOptions(refine_iterations=0),
         "default-quadratic": EstimatorOptions(fit_degree=2),
-        "default-image-edges": EstimatorOptions(edge_domain="image"),
+        "default-no-refine": EstimatorOptions(refine_iterations=0),
         "default-1-iteration": EstimatorOptions(refine_iterations=1),
-        "default-3-iterations": EstimatorOptions(refine_iterations=3),
-        "default-30m": EstimatorOptions(x_max_m=30.0),
-        "default-dx15": EstimatorOptions(dx_m=0.15),
-        "default-dx20": EstimatorOptions(dx_m=0.2),
-        "default-fine-bev": EstimatorOptions(dy_m=0.006, dx_m=0.05),
-        "default-quadratic-fine": EstimatorOptions(fit_degree=2, dy_m=0.006, dx_m=0.05),
-        "default-20m": EstimatorOptions(fit_range_m=20.0),
+        "default-image-edges": EstimatorOptions(edge_domain="image"),
     }
     if quick:
         out = {k: out[k] for k in ("default", "paper")}

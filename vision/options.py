@@ -122,7 +122,7 @@ class EstimatorOptions:
     eq21: bool = False
     vp: str = "tangent"
     refine_iterations: int = 2
-    rewarp_deg: float = 2.0
+    rewarp_deg: float = 1.0
     max_warps: int = 3
     marker_width_tolerance_m: float = 0.003
     damon_step_deg: float = 0.1
