@@ -111,7 +111,7 @@ class NoiseModel:
     """
 
     gyro_noise_rad_s: float = math.radians(0.05)           # white noise of one gyro sample
-    gyro_bias_walk_rad_s_sqrt_s: float = math.radians(0.005)
+    gyro_bias_walk_rad_s_sqrt_s: float = math.radians(0.002)
     bank_rate_rad_s: float = math.radians(2.0)             # stationary 1-sigma of the bank rate
     bank_rate_tau_s: float = 0.3                           # its correlation time
     grade_walk_rad_sqrt_s: float = math.radians(0.2)
@@ -240,10 +240,8 @@ def _inv_small(M: np.ndarray) -> np.ndarray:
 
 
 def _angle_residual(a, b):
-    """Residual of (roll, pitch, yaw[, curvature]): the angles wrapped to [-pi, pi)."""
-    r = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    r[:3] = wrap_angle(r[:3])
-    return r
+    """Residual of (roll, pitch, yaw), wrapped to [-pi, pi)."""
+    return wrap_angle(np.asarray(a, dtype=float) - np.asarray(b, dtype=float))
 
 
 class AttitudeEKF(ExtendedKalmanFilter):
@@ -297,6 +295,9 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self._R_speed = np.array([[noise.speed_meas_m_s**2]])
         self._H_speed = np.zeros((1, DIM_X))
         self._H_speed[0, S.SPEED] = 1.0
+        self._H_curvature = np.zeros((1, DIM_X))
+        self._H_curvature[0, S.CURVATURE] = 1.0
+        self.curvature_rejected = 0
         R_, P_, Y_ = S.ROLL_W, S.PITCH_W, S.YAW_REL
         BX, BY, BZ = S.GYRO_BIAS_X, S.GYRO_BIAS_Y, S.GYRO_BIAS_Z
         cells = [(R_, R_), (R_, P_), (R_, BX), (R_, BY), (R_, BZ), (P_, R_), (P_, BY), (P_, BZ),
@@ -428,19 +429,21 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     def update_vision(self, angles_rad, sigmas_rad, curvature_1_m: float = math.nan,
                       curvature_sigma_1_m: float = math.nan) -> bool:
-        """Vision (roll, pitch, yaw) relative to the road, with the estimator's own 1-sigma, and
-        the lane-fit curvature when there is one."""
+        """Vision (roll, pitch, yaw) relative to the road, with the estimator's own 1-sigma, then
+        the lane-fit curvature when there is one, gated on its own: a curvature outlier must not
+        throw away good angles, nor good angles carry a bad curvature in. Returns whether the
+        angles were used."""
         n = self.noise
         sig = np.maximum(np.asarray(sigmas_rad, dtype=float) * n.vision_sigma_scale, n.vision_sigma_floor_rad)
-        z, H, hx = np.asarray(angles_rad, dtype=float), vision_jacobian(self.x), vision_hx(self.x)
+        ok = self.gated_update(np.asarray(angles_rad, dtype=float), vision_jacobian(self.x), vision_hx(self.x),
+                               np.diag(sig**2), residual=_angle_residual)
         if math.isfinite(curvature_1_m):
             s_k = curvature_sigma_1_m if math.isfinite(curvature_sigma_1_m) else n.curvature_meas_1_m
             s_k = max(s_k, n.curvature_sigma_floor_1_m + n.curvature_sigma_floor_rel * abs(curvature_1_m))
-            Hk = np.zeros((1, DIM_X))
-            Hk[0, S.CURVATURE] = 1.0
-            z, H = np.append(z, curvature_1_m), np.vstack([H, Hk])
-            hx, sig = np.append(hx, self.x[S.CURVATURE]), np.append(sig, s_k)
-        return self.gated_update(z, H, hx, np.diag(sig**2), residual=_angle_residual)
+            if not self.gated_update(np.array([curvature_1_m]), self._H_curvature,
+                                     np.array([self.x[S.CURVATURE]]), np.array([[s_k**2]])):
+                self.curvature_rejected += 1
+        return ok
 
     def specific_force_model(self, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0):
         """Predicted specific force at the IMU (vehicle axes, m/s^2) and its Jacobian.

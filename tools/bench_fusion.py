@@ -75,17 +75,20 @@ def lane_loss(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[float, float
     from fusion.pipeline import fuse
     from imu import read_log
 
+    from fusion.options import fusion_options_from_table
+
     cfg = load_config(drive / "config.toml")
+    opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
     log = next(p for p in drive.glob("can.*"))
     imu, _ = read_log(log, cfg.can, cfg.imu)
     vision = pd.read_csv(run_dir / "vision.csv")
     truth = pd.read_csv(drive / "truth.csv")
     t0 = float(vision["t_s"].iloc[0])
     lost = (vision["t_s"] >= t0 + t_loss_s) & (vision["t_s"] < t0 + t_loss_s + 5.0)
-    base = fuse(imu, vision, lever_arm_m=cfg.imu.position_m).fused
+    base = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts).fused
     v = vision.copy()
-    v.loc[lost, "valid"] = False
-    f = fuse(imu, v, lever_arm_m=cfg.imu.position_m).fused
+    v.loc[lost, "valid"] = 0
+    f = fuse(imu, v, lever_arm_m=cfg.imu.position_m, options=opts).fused
     t = f["t_s"].to_numpy()
     err = np.abs(f["roll_deg"].to_numpy() - interp_truth(truth, t)["roll_deg"].to_numpy())
     err0 = np.abs(base["roll_deg"].to_numpy() - interp_truth(truth, t)["roll_deg"].to_numpy())
