@@ -346,11 +346,15 @@ def main(argv: list[str] | None = None) -> int:
     centers = [n for n in hd if n.endswith("_center") and (n, "damon2018") in runs]
     if centers:
         print("Against the roll loop of Damon et al. 2018 (delta-phi 0.1 deg, range 6 deg), same frames:")
+        print("  (roll RMSE of both on the frames where both are valid; the loop's valid share in brackets)")
         for n in centers:
             rd, ro = runs[(n, "damon2018")], runs[(n, "default@damon")]
             md, mo = float(np.median(rd.ms)), float(np.median(ro.ms))
-            print(f"  {n:24s} loop {md:8.1f} ms/frame, roll RMSE {fmt(rd.rmse()[0])} deg | this {mo:6.2f} ms/frame, "
-                  f"roll RMSE {fmt(ro.rmse()[0])} deg | {md / mo:6.1f}x faster")
+            both = rd.valid & ro.valid
+            e_d = float(np.sqrt(np.mean(rd.err_deg[both, 0] ** 2))) if both.any() else math.nan
+            e_o = float(np.sqrt(np.mean(ro.err_deg[both, 0] ** 2))) if both.any() else math.nan
+            print(f"  {n:24s} loop {md:7.1f} ms/frame, roll RMSE {fmt(e_d)} deg [{rd.valid.mean():4.0%} valid] | "
+                  f"this {mo:5.2f} ms/frame, roll RMSE {fmt(e_o)} deg [{ro.valid.mean():4.0%}] | {md / mo:5.1f}x faster")
         md = float(np.median(np.concatenate([runs[(n, 'damon2018')].ms for n in centers])))
         mo = float(np.median(np.concatenate([runs[(n, 'default@damon')].ms for n in centers])))
         print(f"  all: loop {md:.1f} ms/frame, this {mo:.2f} ms/frame: {md / mo:.1f}x faster")

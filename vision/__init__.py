@@ -1,7 +1,30 @@
-"""Vision: the vehicle's attitude relative to the road from one camera frame."""
+"""Vision: the vehicle's attitude relative to the road from one camera frame.
 
+``estimate(image, camera, mount, seed=None, road=..., options=...)`` for one frame,
+:class:`Estimator` for a sequence (it seeds each frame with the last), :func:`estimate_video`
+for a whole video. The estimator and its heavy dependencies (OpenCV, numba) load on first use.
+"""
+
+from . import frames
 from .camera import Camera, Mount, RoadMarkings
 from .errors import VisionError
-from . import frames
 
-__all__ = ["Camera", "Mount", "RoadMarkings", "VisionError", "frames"]
+__all__ = [
+    "Camera", "Mount", "RoadMarkings", "VisionError", "frames",
+    "estimate", "Estimator", "VisionEstimate", "EstimatorOptions", "options_from_table",
+    "estimate_video", "FrameSource",
+]
+
+_LAZY = {
+    "estimate": "estimator", "Estimator": "estimator", "VisionEstimate": "estimator",
+    "EstimatorOptions": "options", "options_from_table": "options",
+    "estimate_video": "video", "FrameSource": "video",
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -9,7 +9,8 @@ Pipeline (each step in its own module):
 5. the camera's attitude ``R_o_from_cs = Rx(phi1) Ry(theta1) Rz(psi1)``, the vehicle's
    ``R_o_from_v = R_o_from_cs R_v_from_cs^T`` (eq. (22)) and its ZYX angles (section VII).
 
-What the round trip against the simulator decided (tests/test_vision_estimator.py):
+What the round trip decided (tests/test_vision_geometry.py on exact edges, test_vision_estimator.py
+on rendered frames):
 
 * The BEV built with pitch and yaw equal to the vanishing point's differs from the truth by
   ``Q = R_assumed R_o_from_cs^T = Rx(phi0 - phi1)``, a rotation about the lane direction, so the
@@ -24,11 +25,23 @@ What the round trip against the simulator decided (tests/test_vision_estimator.p
   it moves sideways by ``-h sin(roll)``; eqs. (8), (10) use angles only, but the lateral offset,
   the curvature and the ground coordinates of the refinement use this height.
 
-Beyond the paper (each a switch in :class:`vision.options.EstimatorOptions`): BEV at the previous
-frame's pose; sub-pixel edges; several cross-sections; iterated refinement that re-projects the
-detected edges with the new roll, pitch and yaw (the small-angle approximations of a single pass
-become exact as the residual rotation goes to zero); re-warping when the pose moved far; the
-vanishing point of the lane tangents at the vehicle (curved roads); known unequal widths.
+Beyond the paper (each a switch in :class:`vision.options.EstimatorOptions`, measured side by
+side by ``tools/bench_vision.py``):
+
+* the BEV at the previous frame's pose (seed), narrowed to its lines; without a usable seed a
+  wide, coarse BEV tried at several leans finds the lines first (no memory needed for
+  correctness: the seed only starts the search);
+* blur-proof marker edges: centroid and area of each marker's profile (:mod:`vision.lanes`);
+* refinement: the detected edge points are re-projected with the new roll, pitch and yaw and
+  the lanes fitted again (:mod:`vision.lanemodel`: all edges share the road's shape, weighted by
+  their measured noise, concentric on curves), so the single pass's small-angle approximations
+  (a BEV row that is not a cross-section, converging lines) vanish; the image is warped again
+  when the pose moved by more than ``rewarp_deg``;
+* the lane direction at the vehicle (tangents of the fitted lanes of the two outer lines) instead
+  of straight lines, so that curves and clothoids do not bias pitch and yaw;
+* several cross-sections, known unequal marker widths, and a plausibility check of the lines
+  (marker widths and spacing on the road) that turns curbs and absurd balances into
+  ``valid=False``.
 """
 
 from __future__ import annotations
@@ -280,6 +293,8 @@ class Estimator:
         self.lane_options = LaneOptions(edges=o.edges if not coarse else "subpixel", fit_degree=o.fit_degree)
         self.lut = _undistort_lut(camera)
         self.last: VisionEstimate | None = None
+        self._before_last: VisionEstimate | None = None
+        self._last_call_valid = False
         self._R_cs_from_v = Ry(mount.tilt_rad).T
         self._height_memo: dict = {}
 
@@ -287,14 +302,22 @@ class Estimator:
 
     def reset(self) -> None:
         self.last = None
+        self._before_last = None
+        self._last_call_valid = False
 
     def estimate(self, image, seed=None, *, keep_debug: bool = False) -> VisionEstimate:
         """Estimate one frame. ``seed``: a previous :class:`VisionEstimate` or ``(roll, pitch,
         yaw)`` in rad; ``None`` uses the last valid estimate of this object (or no seed).
         Never raises for bad pictures: they give ``valid=False`` with a ``reason``."""
-        if seed is None and self.last is not None and self.last.valid:
+        own_seed = seed is None and self.last is not None and self.last.valid
+        if own_seed:
             seed = self.last
         seed_rpy = _seed_rpy(seed)
+        if own_seed and self._before_last is not None and seed_rpy is not None:
+            # The last two frames in a row were valid: start from their extrapolation (constant
+            # rate). A better start only saves a second warp; the estimate does not depend on it.
+            prev = self._before_last.rpy_rad
+            seed_rpy = tuple(2.0 * a - b for a, b in zip(seed_rpy, prev))
         gray, why = _gray(image)
         if gray is None:
             return VisionEstimate.invalid(why, self.options.method)
@@ -314,7 +337,12 @@ class Estimator:
             est = VisionEstimate.invalid(f"{type(e).__name__}: {e}", self.options.method)
         est = _sanitise(est)
         if est.valid:
+            # Extrapolate next time only from two valid frames in a row.
+            self._before_last = self.last if self._last_call_valid else None
             self.last = est
+        else:
+            self._before_last = None
+        self._last_call_valid = est.valid
         return est
 
     # ---- BEV and markers ----
@@ -500,8 +528,10 @@ class Estimator:
                     edges.append(_Edge(np.concatenate([n_, np.ones((n_.shape[0], 1))], -1), j, side, True, step))
                 continue
             k = m.inliers
-            for side, u in ((0, m.u_left[k]), (1, m.u_right[k])):
-                edges.append(_Edge(bev.rays_of_bev(u, m.v[k]), j, side, False))
+            n_k = int(k.sum())
+            rays = bev.rays_of_bev(np.concatenate([m.u_left[k], m.u_right[k]]), np.concatenate([m.v[k], m.v[k]]))
+            edges.append(_Edge(rays[:n_k], j, 0, False))
+            edges.append(_Edge(rays[n_k:], j, 1, False))
         n_points = int(sum(e.rays.shape[0] for e in edges))
         rms_px = float(np.sqrt(np.mean([m.rms_left**2 + m.rms_right**2 for m in lines]) / 2.0))
         shape_deg = o.fit_degree

@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 
 import cv2
+import numba as nb
 import numpy as np
 
 from .camera import Camera
@@ -173,25 +174,8 @@ class Bev:
         (undistorted image rectangle), as float arrays of length ``h_pix``; empty rows get
         ``lo > hi``."""
         g, cam = self.grid, self.camera
-        v = np.arange(g.height, dtype=float)
-        H = self.image_from_bev
-        # p(u) = a + u b  (homogeneous image point along the BEV row)
-        a = H[:, 1:2] * v + H[:, 2:3]          # (3, n)
-        b = np.broadcast_to(H[:, 0:1], a.shape)
-        lo = np.full(v.shape, 0.0)
-        hi = np.full(v.shape, g.width - 1.0)
-        # each constraint c . p(u) >= 0 is linear in u: (c.a) + u (c.b) >= 0; also w > 0
-        W, Hh = cam.width, cam.height
-        cons = [np.array([1.0, 0.0, 0.5]), np.array([-1.0, 0.0, W - 0.5]),
-                np.array([0.0, 1.0, 0.5]), np.array([0.0, -1.0, Hh - 0.5]), np.array([0.0, 0.0, 1.0])]
-        for c in cons:
-            ca, cb = c @ a, c @ b
-            with np.errstate(divide="ignore", invalid="ignore"):
-                r = -ca / cb
-            lo = np.where(cb > 0, np.maximum(lo, r), lo)
-            hi = np.where(cb < 0, np.minimum(hi, r), hi)
-            lo = np.where((cb == 0) & (ca < 0), np.inf, lo)
-        return lo, hi
+        return _valid_columns(np.ascontiguousarray(self.image_from_bev), g.height, float(g.width - 1),
+                              float(cam.width), float(cam.height))
 
     # ---- warp ----
 
@@ -217,6 +201,31 @@ class Bev:
         xd = cv2.remap(lut_x, xu, yu, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1e6)
         yd = cv2.remap(lut_y, xu, yu, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1e6)
         return cv2.remap(image, xd, yd, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+@nb.njit(cache=True)
+def _valid_columns(H, n_rows, u_max, W, Hh):  # pragma: no cover (numba)
+    """For each row v, the u range where the homogeneous image point ``H (u, v, 1)`` lies in
+    front of the camera and inside ``[-0.5, W - 0.5] x [-0.5, Hh - 0.5]``: five linear
+    constraints ``c . p(u) >= 0`` with ``p(u) = a + u b``."""
+    lo = np.zeros(n_rows)
+    hi = np.full(n_rows, u_max)
+    C = np.array([[1.0, 0.0, 0.5], [-1.0, 0.0, W - 0.5], [0.0, 1.0, 0.5], [0.0, -1.0, Hh - 0.5],
+                  [0.0, 0.0, 1.0]])
+    for v in range(n_rows):
+        a0 = H[0, 1] * v + H[0, 2]
+        a1 = H[1, 1] * v + H[1, 2]
+        a2 = H[2, 1] * v + H[2, 2]
+        for k in range(5):
+            ca = C[k, 0] * a0 + C[k, 1] * a1 + C[k, 2] * a2
+            cb = C[k, 0] * H[0, 0] + C[k, 1] * H[1, 0] + C[k, 2] * H[2, 0]
+            if cb > 0:
+                lo[v] = max(lo[v], -ca / cb)
+            elif cb < 0:
+                hi[v] = min(hi[v], -ca / cb)
+            elif ca < 0:
+                lo[v] = np.inf
+    return lo, hi
 
 
 def undistortion_lookup(camera: Camera, pad_px: int = 64):
