@@ -1,7 +1,9 @@
 """Benchmark of the vision estimator on the simulated drives of Alrazouk et al. 2024, Table I.
 
     .venv/bin/python tools/bench_vision.py            # everything (renders what is not cached)
-    .venv/bin/python tools/bench_vision.py --quick    # smoke run: every 4th frame, fewer configs
+    .venv/bin/python tools/bench_vision.py --quick    # smoke run: every 4th frame, two configs
+                                                      # (frames 4x further apart need more second
+                                                      # warps: its timings are not the benchmark's)
 
 Prints, for each Table I scenario, the RMSE of roll, pitch and yaw of the vehicle relative to
 the road against the simulator's exact truth, next to the paper's figures; then the same for
