@@ -64,12 +64,14 @@ def damon_estimate(est: Estimator, gray: np.ndarray, seed_rpy, keep_debug: bool 
     prev = None           # (phi, diff, bev, lines)
     found = None
     iterations = 0
+    most_lines = 0
     for _ in range(n_steps):
         iterations += 1
         pose = camera_xyz_from_vehicle(phi, 0.0, 0.0, est.mount.tilt_rad)
         H, _ = est.height_of(*pose)
         bev, img, markers = est.markers_at(gray, _R_o_from_cp(*pose), H, lane_opts)
         lines, idx = est.select_lines(bev, markers, True)
+        most_lines = max(most_lines, len(lines))
         diff = area_difference(lines, bev.grid.dy_m) if len(lines) == 3 else None
         if diff is not None:
             cur = (phi, diff, bev, lines, img, markers, idx)
@@ -82,10 +84,12 @@ def damon_estimate(est: Estimator, gray: np.ndarray, seed_rpy, keep_debug: bool 
             prev = cur
         phi += step
     if found is None:
-        dbg = None
-        return VisionEstimate.invalid(f"no balance of the lane areas within +-{o.damon_range_deg / 2:g} deg "
-                                      f"of {math.degrees(phi_prev):.1f} deg", "damon2018", debug=dbg,
-                                      iterations=iterations)
+        if most_lines < 3:
+            why = f"the loop needs three lines, found at most {most_lines}"
+        else:
+            why = (f"no balance of the lane areas within +-{o.damon_range_deg / 2:g} deg "
+                   f"of {math.degrees(phi_prev):.1f} deg")
+        return VisionEstimate.invalid(why, "damon2018", iterations=iterations)
     roll, _, bev, lines, img, markers, idx = found
     # Pitch and yaw: vanishing point of straight lines through the markers in the image.
     vp, segs = est._vp_image_lines(bev, lines)
