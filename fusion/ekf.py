@@ -70,6 +70,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
@@ -292,11 +293,6 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.last_d2 = math.nan
         self._gate = {k: float(chi2.ppf(noise.gate_probability, k)) for k in (1, 2, 3, 4)}
         self._R_accel = np.diag(np.asarray(noise.accel_meas_m_s2, dtype=float) ** 2)
-        self._R_speed = np.array([[noise.speed_meas_m_s**2]])
-        self._H_speed = np.zeros((1, DIM_X))
-        self._H_speed[0, S.SPEED] = 1.0
-        self._H_curvature = np.zeros((1, DIM_X))
-        self._H_curvature[0, S.CURVATURE] = 1.0
         self.curvature_rejected = 0
         R_, P_, Y_ = S.ROLL_W, S.PITCH_W, S.YAW_REL
         BX, BY, BZ = S.GYRO_BIAS_X, S.GYRO_BIAS_Y, S.GYRO_BIAS_Z
@@ -406,8 +402,10 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
         The gate ``y^T S^-1 y < chi2(p_gate, dof)`` is computed before the update from the same
         ``S = H P H^T + R``; a rejected measurement leaves the state untouched and returns
-        False. The update is filterpy's (Joseph form, same attributes ``y, S, SI, K, z,
-        x_post, P_post``), written out here so that ``S`` is inverted once.
+        False. The update is filterpy's with the same attributes (``y, S, SI, K, z, x_post,
+        P_post``), written out so that ``S`` is inverted once, and with the covariance in the
+        optimal-gain form ``P - K S K^T`` (equal to filterpy's Joseph form for the optimal
+        gain, and half the matrix products), symmetrised.
         """
         y = residual(z, hx)
         PHT = self.P @ H.T
@@ -419,10 +417,27 @@ class AttitudeEKF(ExtendedKalmanFilter):
             return False
         K = PHT @ SI
         self.x = self.x + K @ y
-        # P - K S K^T (the optimal-gain form of the Joseph update), kept symmetric
         P = self.P - K @ PHT.T
         self.P = (P + P.T) * 0.5
         self.y, self.S, self.SI, self.K, self.z = y, Sm, SI, K, z
+        self._log_likelihood = self._likelihood = self._mahalanobis = None
+        self.x_post, self.P_post = self.x, self.P
+        return True
+
+    def gated_update_state(self, i: int, z: float, r2: float) -> bool:
+        """:meth:`gated_update` for a measurement of state ``i`` itself (speed, curvature), with
+        variance ``r2``: the same equations, without the matrix products of a general H."""
+        P = self.P
+        y = z - self.x[i]
+        Sm = P[i, i] + r2
+        d2 = y * y / Sm
+        self.last_d2 = d2
+        if d2 > self._gate[1]:
+            return False
+        K = P[:, i] / Sm
+        self.x = self.x + K * y
+        self.P = P - np.outer(K, P[i, :])
+        self.y, self.S, self.SI, self.K, self.z = np.array([y]), np.array([[Sm]]), np.array([[1.0 / Sm]]), K[:, None], z
         self._log_likelihood = self._likelihood = self._mahalanobis = None
         self.x_post, self.P_post = self.x, self.P
         return True
@@ -440,8 +455,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         if math.isfinite(curvature_1_m):
             s_k = curvature_sigma_1_m if math.isfinite(curvature_sigma_1_m) else n.curvature_meas_1_m
             s_k = max(s_k, n.curvature_sigma_floor_1_m + n.curvature_sigma_floor_rel * abs(curvature_1_m))
-            if not self.gated_update(np.array([curvature_1_m]), self._H_curvature,
-                                     np.array([self.x[S.CURVATURE]]), np.array([[s_k**2]])):
+            if not self.gated_update_state(S.CURVATURE, curvature_1_m, s_k**2):
                 self.curvature_rejected += 1
         return ok
 
@@ -451,69 +465,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
         Module docstring, "Gravity reference": the velocity's direction in the body follows
         the relative roll and pitch, and its rate the relative Euler rates (body rates minus
         the road frame's own rotation: heading rate about level z, bank rate about road x).
-        The Jacobian keeps the dominant terms (gravity, centripetal, speed, biases).
+        The Jacobian keeps the dominant terms (gravity, centripetal, speed, biases). Compiled
+        (:func:`_specific_force`): it runs for every IMU sample.
         """
-        x, g = self.x, GRAVITY_M_S2
-        phi, theta, v, a = x[S.ROLL_W], x[S.PITCH_W], x[S.SPEED], x[S.ACCEL_X]
-        sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
-        p, q, r = self.body_rates(gyro_rad_s, x)
-        # attitude relative to the road and the road frame's rotation, in o
-        R_gp_from_o = R_from_rpy_scalar(x[S.BANK], x[S.GRADE], 0.0)
-        R_o_from_v = R_gp_from_o.T @ R_from_rpy_scalar(phi, theta, x[S.YAW_REL])
-        phi_o, theta_o = math.atan2(R_o_from_v[2, 1], R_o_from_v[2, 2]), -math.asin(max(-1.0, min(1.0, R_o_from_v[2, 0])))
-        w_road_o = road_turn_rate_rad_s * R_gp_from_o[2, :]
-        w_road_o[0] += x[S.BANK_RATE]
-        w_road_v = w_road_o @ R_o_from_v
-        pr, qr, rr = p - w_road_v[0], q - w_road_v[1], r - w_road_v[2]
-        so, co, sto, cto = math.sin(phi_o), math.cos(phi_o), math.sin(theta_o), math.cos(theta_o)
-        theta_o_dot = qr * co - rr * so
-        phi_o_dot = pr + sto / cto * (qr * so + rr * co)
-        # velocity direction in the body and its derivative as seen in the body
-        ex, ey, ez = cto, sto * so, sto * co
-        dex = -sto * theta_o_dot
-        dey = cto * theta_o_dot * so + sto * co * phi_o_dot
-        dez = cto * theta_o_dot * co - sto * so * phi_o_dot
-        # a_b = a e + v (de + w x e);  gravity g (-sin th, cos th sin ph, cos th cos ph)
-        fx = a * ex + v * (dex + q * ez - r * ey) - g * st
-        fy = a * ey + v * (dey + r * ex - p * ez) + g * ct * sf
-        fz = a * ez + v * (dez + p * ey - q * ex) + g * ct * cf
-        # lever arm: w' x rho + w x (w x rho)
-        rx, ry, rz = self.lever_arm_m
-        wdx, wdy, wdz = gyro_dot_rad_s2
-        cx, cy, cz = q * rz - r * ry, r * rx - p * rz, p * ry - q * rx
-        ba = x[S.ACCEL_BIAS]
-        f = np.array([fx + wdy * rz - wdz * ry + q * cz - r * cy + ba[0],
-                      fy + wdz * rx - wdx * rz + r * cx - p * cz + ba[1],
-                      fz + wdx * ry - wdy * rx + p * cy - q * cx + ba[2]])
-        # Jacobian. Rates enter through w x e and through de (the relative Euler rates):
-        # df/dw = v (-[e]x + de/dtheta_o (0, cos, -sin) + de/dphi_o (1, tan sin, tan cos)); the
-        # two cancel for a body pitching relative to its path, so a pitch-rate bias does not
-        # show in f_z. Gravity gives the attitude terms; e's own dependence on the relative
-        # angles is second order (times the small relative pitch) and left out.
-        tto = sto / cto
-        dth = (-sto, cto * so, cto * co)       # de/dtheta_o
-        dph = (0.0, sto * co, -sto * so)       # de/dphi_o
-        # columns p, q, r; d(w x e)/dw = -[e]x
-        Jw = v * np.array([
-            [dph[0], ez + dth[0] * co + dph[0] * tto * so, -ey - dth[0] * so + dph[0] * tto * co],
-            [-ez + dph[1], dth[1] * co + dph[1] * tto * so, ex - dth[1] * so + dph[1] * tto * co],
-            [ey + dph[2], -ex + dth[2] * co + dph[2] * tto * so, -dth[2] * so + dph[2] * tto * co],
-        ])
-        H = np.zeros((3, DIM_X))
-        H[:, S.ACCEL_BIAS] = np.eye(3)
-        H[:, S.ACCEL_X] = (ex, ey, ez)
-        H[:, S.SPEED] = ((fx + g * st - a * ex) / v, (fy - g * ct * sf - a * ey) / v,
-                         (fz - g * ct * cf - a * ez) / v) if v > 0.1 else (0.0, 0.0, 0.0)
-        H[:, S.PITCH_W] = (-g * ct, -g * st * sf, -g * st * cf)
-        H[:, S.ROLL_W] = (0.0, g * ct * cf, -g * ct * sf)
-        if self.has_pitch_rate:
-            H[:, S.GYRO_BIAS] = -Jw
-        else:  # q = r tan(phi): r carries q, and q depends on the roll
-            tf = sf / cf
-            H[:, S.GYRO_BIAS_X] = -Jw[:, 0]
-            H[:, S.GYRO_BIAS_Z] = -(Jw[:, 2] + Jw[:, 1] * tf)
-            H[:, S.ROLL_W] += Jw[:, 1] * r / cf**2
-        return f, H
+        return _specific_force(self.x, np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float),
+                               self.lever_arm_m, float(road_turn_rate_rad_s), self.has_pitch_rate)
 
     def update_gravity(self, accel_m_s2, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0) -> bool:
         """Accelerometer as gravity reference, centripetal and lever-arm terms compensated."""
@@ -521,5 +477,82 @@ class AttitudeEKF(ExtendedKalmanFilter):
         return self.gated_update(np.asarray(accel_m_s2, dtype=float), H, f, self._R_accel)
 
     def update_speed(self, speed_m_s: float) -> bool:
-        return self.gated_update(np.array([speed_m_s]), self._H_speed, np.array([self.x[S.SPEED]]),
-                                 self._R_speed)
+        return self.gated_update_state(S.SPEED, speed_m_s, self.noise.speed_meas_m_s**2)
+
+
+@nb.njit(cache=True)
+def _rpy_matrix(roll, pitch, yaw):
+    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    R[1, 0], R[1, 1], R[1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    R[2, 0], R[2, 1], R[2, 2] = -sp, cp * sr, cp * cr
+    return R
+
+
+@nb.njit(cache=True)
+def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
+    """Specific-force model and Jacobian; see :meth:`AttitudeEKF.specific_force_model`."""
+    g = GRAVITY_M_S2
+    phi, theta, v, a = x[0], x[1], x[8], x[9]
+    sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
+    p, q, r = gyro[0] - x[5], gyro[1] - x[6], gyro[2] - x[7]
+    if not has_q:
+        q = r * math.tan(phi)
+    # attitude relative to the road and the road frame's rotation, in o
+    A = _rpy_matrix(x[3], x[4], 0.0)          # R_g'_from_o
+    R = A.T @ _rpy_matrix(phi, theta, x[2])   # R_o_from_v
+    phi_o = math.atan2(R[2, 1], R[2, 2])
+    theta_o = -math.asin(max(-1.0, min(1.0, R[2, 0])))
+    wo0, wo1, wo2 = road_rate * A[2, 0] + x[10], road_rate * A[2, 1], road_rate * A[2, 2]
+    pr = p - (wo0 * R[0, 0] + wo1 * R[1, 0] + wo2 * R[2, 0])
+    qr = q - (wo0 * R[0, 1] + wo1 * R[1, 1] + wo2 * R[2, 1])
+    rr = r - (wo0 * R[0, 2] + wo1 * R[1, 2] + wo2 * R[2, 2])
+    so, co, sto, cto = math.sin(phi_o), math.cos(phi_o), math.sin(theta_o), math.cos(theta_o)
+    theta_o_dot = qr * co - rr * so
+    phi_o_dot = pr + sto / cto * (qr * so + rr * co)
+    # velocity direction in the body and its derivative as seen in the body
+    ex, ey, ez = cto, sto * so, sto * co
+    dex = -sto * theta_o_dot
+    dey = cto * theta_o_dot * so + sto * co * phi_o_dot
+    dez = cto * theta_o_dot * co - sto * so * phi_o_dot
+    # a_b = a e + v (de + w x e);  gravity g (-sin th, cos th sin ph, cos th cos ph)
+    fx = a * ex + v * (dex + q * ez - r * ey) - g * st
+    fy = a * ey + v * (dey + r * ex - p * ez) + g * ct * sf
+    fz = a * ez + v * (dez + p * ey - q * ex) + g * ct * cf
+    # lever arm: w' x rho + w x (w x rho)
+    rx, ry, rz = rho[0], rho[1], rho[2]
+    wdx, wdy, wdz = gyro_dot[0], gyro_dot[1], gyro_dot[2]
+    cx, cy, cz = q * rz - r * ry, r * rx - p * rz, p * ry - q * rx
+    f = np.empty(3)
+    f[0] = fx + wdy * rz - wdz * ry + q * cz - r * cy + x[11]
+    f[1] = fy + wdz * rx - wdx * rz + r * cx - p * cz + x[12]
+    f[2] = fz + wdx * ry - wdy * rx + p * cy - q * cx + x[13]
+    # Jacobian. Rates enter through w x e and through de (the relative Euler rates):
+    # df/dw = v (-[e]x + de/dtheta_o (0, cos, -sin) + de/dphi_o (1, tan sin, tan cos)); the
+    # two cancel for a body pitching relative to its path, so a pitch-rate bias does not
+    # show in f_z. Gravity gives the attitude terms; e's own dependence on the relative
+    # angles is second order (times the small relative pitch) and left out.
+    tto = sto / cto
+    t0, t1, t2 = -sto, cto * so, cto * co       # de/dtheta_o
+    h0, h1, h2 = 0.0, sto * co, -sto * so      # de/dphi_o
+    J = np.empty((3, 3))                        # columns p, q, r; d(w x e)/dw = -[e]x
+    J[0, 0], J[0, 1], J[0, 2] = h0, ez + t0 * co + h0 * tto * so, -ey - t0 * so + h0 * tto * co
+    J[1, 0], J[1, 1], J[1, 2] = -ez + h1, t1 * co + h1 * tto * so, ex - t1 * so + h1 * tto * co
+    J[2, 0], J[2, 1], J[2, 2] = ey + h2, -ex + t2 * co + h2 * tto * so, -t2 * so + h2 * tto * co
+    H = np.zeros((3, DIM_X))
+    for i in range(3):
+        H[i, 11 + i] = 1.0
+    H[0, 9], H[1, 9], H[2, 9] = ex, ey, ez
+    if v > 0.1:
+        H[0, 8], H[1, 8], H[2, 8] = (fx + g * st - a * ex) / v, (fy - g * ct * sf - a * ey) / v, (fz - g * ct * cf - a * ez) / v
+    H[0, 1], H[1, 1], H[2, 1] = -g * ct, -g * st * sf, -g * st * cf
+    H[0, 0], H[1, 0], H[2, 0] = 0.0, g * ct * cf, -g * ct * sf
+    for i in range(3):
+        if has_q:
+            H[i, 5], H[i, 6], H[i, 7] = -v * J[i, 0], -v * J[i, 1], -v * J[i, 2]
+        else:  # q = r tan(phi): r carries q, and q depends on the roll
+            H[i, 5] = -v * J[i, 0]
+            H[i, 7] = -v * (J[i, 2] + J[i, 1] * sf / cf)
+            H[i, 0] += v * J[i, 1] * r / (cf * cf)
+    return f, H
