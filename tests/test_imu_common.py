@@ -15,10 +15,11 @@ import numpy as np
 import pandas as pd
 
 from drivesim.canlog import DBC_PATH, signal_map
+from conftest import shared_data_dir
 from imu import CanMapping, ImuMount
 
 #: Real third-party data, next to the checkout (never copied into it).
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_DATA = shared_data_dir()
 COMMA = SHARED_DATA / "comma2k19_rav4_segment"
 
 #: FRD-mounted IMU, 0.5 m above the front contact point.

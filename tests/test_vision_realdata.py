@@ -9,12 +9,14 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import shared_data_dir
+
 from vision import Camera, Mount, RoadMarkings
 from vision.estimator import Estimator, _R_o_from_cp
 from vision.frames import rpy_from_R
 from vision.options import EstimatorOptions
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+DATA = shared_data_dir()
 KITTI = DATA / "kitti_2011_09_26_drive_0001"
 UDACITY = DATA / "udacity_advanced_lane_lines"
 
