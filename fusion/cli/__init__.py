@@ -10,6 +10,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import time
+
+#: When the command line was loaded: the start of a run's fixed costs (imports included).
+STARTED_S = time.perf_counter()
 
 from imu.errors import ImuError
 from vision.errors import VisionError

@@ -82,7 +82,9 @@ def run(args: argparse.Namespace) -> int:
     from ..report import ReportInputs, write_report
     from ..timing import estimate_camera_offset
 
-    t_start = time.perf_counter()
+    from . import STARTED_S
+
+    t_start = STARTED_S
     timings: dict[str, float] = {}
     warnings: list[str] = []
     progress = not args.quiet
