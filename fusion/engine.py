@@ -149,7 +149,7 @@ class FusionStream:
 
     def add_vision(self, t_s: float, angles_rad, sigmas_rad, valid: bool = True,
                    curvature_1_m: float = math.nan, lateral_offset_m: float = math.nan,
-                   curvature_sigma_1_m: float = math.nan) -> None:
+                   curvature_sigma_1_m: float = math.nan, lookahead_m: float = 0.0) -> None:
         """A vision result: roll, pitch, yaw relative to the road at capture time ``t_s``."""
         if not self.options.use_vision:
             return
@@ -158,7 +158,8 @@ class FusionStream:
         if not valid or not (np.all(np.isfinite(angles)) and np.all(np.isfinite(sig))):
             self.counts["vision_invalid"] += 1
             return
-        item = (float(t_s), angles, sig, float(curvature_1_m), float(lateral_offset_m), float(curvature_sigma_1_m))
+        la = float(lookahead_m) if math.isfinite(lookahead_m) else 0.0
+        item = (float(t_s), angles, sig, float(curvature_1_m), float(lateral_offset_m), float(curvature_sigma_1_m), la)
         if not self._hist or item[0] > self._hist[-1].t:
             self._pending.append(item)   # the IMU has not reached it yet
         else:
@@ -244,7 +245,7 @@ class FusionStream:
             self.counts["speed_rejected"] += 1
             self._speed_rejected_in_row += 1
 
-    def _vision_update(self, t, angles, sig, kappa, offset, kappa_sigma=math.nan) -> None:
+    def _vision_update(self, t, angles, sig, kappa, offset, kappa_sigma=math.nan, lookahead=0.0) -> None:
         ekf = self.ekf
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
@@ -255,7 +256,7 @@ class FusionStream:
             if math.isfinite(kappa):
                 ekf.x[S.CURVATURE] = kappa
             self._vision_initialized = True
-        if ekf.update_vision(angles, sig, kappa, kappa_sigma):
+        if ekf.update_vision(angles, sig, kappa, kappa_sigma, lookahead):
             self.counts["vision_used"] += 1
             self._last_vision_t = t
             self._rejected_in_row = 0
@@ -265,7 +266,7 @@ class FusionStream:
             if self._rejected_in_row >= self.options.reacquire_after_rejections:
                 self._reacquire(angles, kappa)
                 self.counts["vision_reacquired"] += 1
-                if ekf.update_vision(angles, sig, kappa, kappa_sigma):
+                if ekf.update_vision(angles, sig, kappa, kappa_sigma, lookahead):
                     self.counts["vision_used"] += 1
                     self._last_vision_t = t
                 self._rejected_in_row = 0
@@ -287,7 +288,7 @@ class FusionStream:
             ekf.P[:, i] = 0.0
             ekf.P[i, i] = sig**2
 
-    def _apply_late(self, t, angles, sig, kappa, offset, kappa_sigma=math.nan) -> None:
+    def _apply_late(self, t, angles, sig, kappa, offset, kappa_sigma=math.nan, lookahead=0.0) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it
         and re-propagate the stored samples after it."""
         hist = self._hist
@@ -301,7 +302,7 @@ class FusionStream:
         if replay and self.record:
             raise ValueError("late vision result with record=True: feed inputs in time order")
         self.ekf.x, self.ekf.P = base.x_post.copy(), base.P_post.copy()
-        item = (t, angles, sig, kappa, offset, kappa_sigma)
+        item = (t, angles, sig, kappa, offset, kappa_sigma, lookahead)
         if not replay:  # exactly at the newest sample's time
             self._vision_update(*item)
             base.x_post, base.P_post = self.ekf.x.copy(), self.ekf.P.copy()
