@@ -90,6 +90,13 @@ class VisionEstimate:
     curvature_1_m : float
         Curvature of the lane at the vehicle, 1/m, positive turning left (mean of the lines used).
     curvature_sigma_1_m : float
+        Its 1-sigma, 1/m: the lane model's covariance (vertical curvature included) plus the
+        model terms of :data:`CURVATURE_MODEL_SIGMA`.
+    vertical_curvature_1_m : float
+        ``zeta``: the road surface ahead leaves the tangent plane at the vehicle as
+        ``zeta x^2 / 2`` (1/m; positive a sag, negative a crest; ``-kappa sin(bank)`` on a
+        banked curve). 0 with ``vertical_curvature=False``.
+    vertical_curvature_sigma_1_m : float
         Its 1-sigma from the lane model's covariance, 1/m.
     lateral_offset_m : float
         Vehicle origin's offset from the midpoint between the outermost lines used, m, positive
@@ -128,6 +135,8 @@ class VisionEstimate:
     valid: bool
     curvature_1_m: float = math.nan
     curvature_sigma_1_m: float = math.nan
+    vertical_curvature_1_m: float = math.nan
+    vertical_curvature_sigma_1_m: float = math.nan
     lateral_offset_m: float = math.nan
     line_spacing_m: float = math.nan
     line_offsets_m: tuple[float, ...] = ()
@@ -176,6 +185,17 @@ class DebugInfo:
 _CONVERGED_RAD = 1e-5
 #: Below this last step the lane model of the last pass is kept for the outputs (rad).
 _REUSE_RAD = 1e-4
+#: Vertical curvature is clamped to this (1/m): a crest or sag of 200 m radius; steeper is no road.
+_ZETA_MAX = 5e-3
+#: A change of the vertical curvature counts in the convergence test as the slope it makes this
+#: far ahead (m).
+_ZETA_LEVER_M = 20.0
+#: Refinement steps larger than this (rad, 0.1 deg) hold the vertical curvature where it is.
+_ZETA_POSE_STEP_RAD = math.radians(0.1)
+#: Model terms of the angles' 1-sigma beyond the lane model's covariance (rad): roll, pitch, yaw.
+_ANGLE_MODEL_SIGMA_RAD = (0.0, 0.0, 0.0)
+#: Model terms of the curvature's 1-sigma: a floor (1/m) and a part proportional to it.
+CURVATURE_MODEL_SIGMA = (0.0, 0.0)
 
 # ---------------------------------------------------------------------------------------------
 # Attitude conversions (eq. (22))
@@ -360,38 +380,60 @@ class Estimator:
                             lane_options or self.lane_options)
         return bev, img, mk
 
-    def select_lines(self, bev: Bev, markers: list[Marker], want_three: bool) -> tuple[list[Marker], list[int]]:
+    def select_lines(self, bev: Bev, markers: list[Marker], want_three: bool,
+                     curvature_1_m: float = 0.0) -> tuple[list[Marker], list[int]]:
         """The lines for the roll equation, left to right: the nearest on each side of the
-        vehicle, plus (for three) the next line whose spacing is most equal."""
+        vehicle, plus (for three) the next line whose spacing is most equal.
+
+        Each marker's position is its lateral offset at its near end taken back to the nadir
+        along a curve of ``curvature_1_m`` (the previous frame's): on a curve, a dash 30 m ahead
+        sits ``kappa x^2 / 2`` (2 m at 200 m radius) off its line's position at the vehicle.
+        Markers within 1 m of each other there are dashes of one line; the longest stands for it.
+        """
         if len(markers) < 2:
             return [], []
-        u0 = bev.u0
-        uc = np.array([float(np.mean(m.u_at(m.v_near))) for m in markers])
-        left = [i for i in range(len(markers)) if uc[i] < u0]
-        right = [i for i in range(len(markers)) if uc[i] >= u0]
+        g = bev.grid
+        y0 = np.empty(len(markers))
+        extent = np.empty(len(markers))
+        for i, m in enumerate(markers):
+            x_near = float(g.x_of_row(m.v_near))
+            y0[i] = float(g.y_of_col(np.mean(m.u_at(m.v_near)))) - 0.5 * curvature_1_m * x_near**2
+            extent[i] = m.v_near - m.v_far
+        cand: list[int] = []
+        for i in np.argsort(-y0):                      # left to right
+            i = int(i)
+            if cand and y0[cand[-1]] - y0[i] < 1.0:
+                if extent[i] > extent[cand[-1]]:
+                    cand[-1] = i
+                continue
+            cand.append(i)
+        if len(cand) < 2:
+            return [], []
+        left = [i for i in cand if y0[i] > 0.0]
+        right = [i for i in cand if y0[i] <= 0.0]
         if not left or not right:
             # Both lines on one side (large lateral offset): take the two nearest the nadir.
-            order = np.argsort(np.abs(uc - u0))[:2]
-            pair = sorted(int(i) for i in order)
+            pair = sorted(cand, key=lambda i: abs(y0[i]))[:2]
+            pair.sort(key=lambda i: -y0[i])
         else:
             pair = [left[-1], right[0]]
         if not want_three:
             return [markers[i] for i in pair], pair
-        cands = []
-        spacing = abs(uc[pair[1]] - uc[pair[0]])
-        if pair[0] - 1 >= 0:
-            cands.append([pair[0] - 1] + pair)
-        if pair[1] + 1 < len(markers):
-            cands.append(pair + [pair[1] + 1])
-        if not cands:
+        pos = [cand.index(i) for i in pair]
+        trios = []
+        if pos[0] - 1 >= 0 and pos[1] == pos[0] + 1:
+            trios.append([cand[pos[0] - 1]] + pair)
+        if pos[1] + 1 < len(cand) and pos[1] == pos[0] + 1:
+            trios.append(pair + [cand[pos[1] + 1]])
+        if not trios:
             return [markers[i] for i in pair], pair
 
         def unequal(tr):
-            s1, s2 = abs(uc[tr[1]] - uc[tr[0]]), abs(uc[tr[2]] - uc[tr[1]])
+            s1, s2 = y0[tr[0]] - y0[tr[1]], y0[tr[1]] - y0[tr[2]]
             return abs(s1 - s2) / max(s1, s2, 1e-9)
 
-        best = min(cands, key=unequal)
-        if unequal(best) > 0.35 or spacing <= 0:
+        best = min(trios, key=unequal)
+        if unequal(best) > 0.35:
             return [markers[i] for i in pair], pair
         return [markers[i] for i in best], best
 
@@ -417,15 +459,23 @@ class Estimator:
             self._height_memo[key] = hit
         return hit
 
+    def surface_of(self, phi1, theta1, psi1) -> tuple[float, float]:
+        """Camera height above the road's tangent plane at the contact point, and the contact
+        point's distance ahead of the camera's nadir (m), for the camera's XYZ angles."""
+        H, R_o_from_v = self.height_of(phi1, theta1, psi1)
+        return H, -float(R_o_from_v[0] @ self.mount.position_v)
+
     def _alrazouk(self, gray, seed_rpy, keep_debug, seed_est: "VisionEstimate | None" = None) -> VisionEstimate:
         pose = self._initial_pose(seed_rpy)
+        zeta0 = self._zeta_prior(seed_est)
+        curvature = seed_est.curvature_1_m if seed_est is not None and math.isfinite(seed_est.curvature_1_m) else 0.0
         narrow = self._seeded_grid(seed_est, pose)
         if narrow is not None:
             # Only the part of the BEV around the seed's lines; the whole width if a line is lost.
-            result = self._run(gray, pose, keep_debug, narrow)
+            result = self._run(gray, pose, keep_debug, narrow, zeta0, curvature)
             if result.valid and result.n_lines >= seed_est.n_lines:
                 return result
-        result = self._run(gray, pose, keep_debug)
+        result = self._run(gray, pose, keep_debug, zeta0=zeta0, curvature_1_m=curvature)
         if not result.valid and self.options.ipm_pose == "seed":
             # The seed (or the mount's pose) put lines outside the BEV: search for them.
             pose = self._coarse_pose(gray)
@@ -434,6 +484,18 @@ class Estimator:
                 if again.valid:
                     return replace(again, warps=again.warps + result.warps)
         return result
+
+    def _zeta_prior(self, seed: "VisionEstimate | None") -> tuple[float, float]:
+        """Prior of the vertical curvature, ``(mean, sigma)`` in 1/m: the previous frame's
+        estimate with its sigma grown by ``vertical_curvature_walk_1_m``, or ``N(0,
+        vertical_curvature_sigma_1_m^2)`` without one (or when that is tighter)."""
+        o = self.options
+        static = (0.0, o.vertical_curvature_sigma_1_m)
+        if seed is None or not (math.isfinite(seed.vertical_curvature_1_m)
+                                and math.isfinite(seed.vertical_curvature_sigma_1_m)):
+            return static
+        s = math.hypot(seed.vertical_curvature_sigma_1_m, o.vertical_curvature_walk_1_m)
+        return static if s >= static[1] else (seed.vertical_curvature_1_m, s)
 
     def _seeded_grid(self, seed: "VisionEstimate | None", pose) -> BevGrid | None:
         """The BEV grid narrowed to the seed's lines (1.2 m beyond the outer ones, widened by
@@ -446,14 +508,21 @@ class Estimator:
         cam_y = float(_camera_offset(R_o_from_v, self.mount)[1])
         ys = np.asarray(seed.line_offsets_m) - cam_y
         drift = 0.5 * seed.curvature_1_m * g.x_max_m**2
-        lo = float(ys.min()) + min(0.0, drift) - 1.2
-        hi = float(ys.max()) + max(0.0, drift) + 1.2
+        # A planar BEV spreads the lines by y zeta x^2 / 2H on a sag (and draws them in on a crest).
+        zeta = seed.vertical_curvature_1_m if math.isfinite(seed.vertical_curvature_1_m) else 0.0
+        spread = abs(zeta) * g.x_max_m**2 / (2.0 * self.mount.height_m)
+        # Three lines painted but the seed saw two: look one lane further on both sides.
+        missing = self.road.lane_width_m if (self.road.center_line and seed.n_lines < 3
+                                             and o.roll_equation in ("auto", "eq10")) else 0.0
+        lo = float(ys.min()) * (1.0 + spread) + min(0.0, drift) - 1.2 - missing
+        hi = float(ys.max()) * (1.0 + spread) + max(0.0, drift) + 1.2 + missing
         lo, hi = max(lo, g.y_min_m), min(hi, g.y_max_m)
         if hi - lo < 3.0 or (hi - lo) > 0.9 * (g.y_max_m - g.y_min_m):
             return None
         return replace(g, y_min_m=lo, y_max_m=hi)
 
-    def _run(self, gray, pose, keep_debug, grid: BevGrid | None = None) -> VisionEstimate:
+    def _run(self, gray, pose, keep_debug, grid: BevGrid | None = None,
+             zeta0: tuple[float, float] = (0.0, math.inf), curvature_1_m: float = 0.0) -> VisionEstimate:
         """BEV at ``pose``, markers, solve; warp again at the new pose when it moved far."""
         o = self.options
         want_three = self.road.center_line and o.roll_equation in ("auto", "eq10")
@@ -468,7 +537,7 @@ class Estimator:
                 measured = measure_in_image(gray, markers, bev, self.camera, o.edges)
                 markers = [m for m, e in zip(markers, measured) if e is not None]
                 image_edges = [e for e in measured if e is not None]
-            lines, idx = self.select_lines(bev, markers, want_three)
+            lines, idx = self.select_lines(bev, markers, want_three, curvature_1_m)
             dbg = DebugInfo(bev_image=img, bev=bev, markers=markers, used=idx) if keep_debug else None
             if len(lines) < 2:
                 n = len(markers)
@@ -477,7 +546,7 @@ class Estimator:
             used_edges = [image_edges[i] for i in idx] if image_edges is not None else None
             if dbg is not None:
                 dbg.image_edges = used_edges
-            result = self._solve(bev, lines, pose, H, dbg, warps, used_edges)
+            result = self._solve(bev, lines, pose, H, dbg, warps, used_edges, zeta0)
             if not result.valid:
                 return result
             new = result.camera_xyz_rad
@@ -504,7 +573,9 @@ class Estimator:
         return None
 
     def _solve(self, bev: Bev, lines: list[Marker], pose0, H0: float, dbg, warps: int,
-               image_edges=None) -> VisionEstimate:
+               image_edges=None, zeta0: tuple[float, float] = (0.0, math.inf)) -> VisionEstimate:
+        """Roll, pitch, yaw (and the vertical curvature) from the lines found in one BEV.
+        ``zeta0``: prior ``(mean, sigma)`` of the vertical curvature, 1/m (:meth:`_zeta_prior`)."""
         o, cam = self.options, self.camera
         n_lines = len(lines)
         use_eq10 = n_lines == 3 and o.roll_equation in ("auto", "eq10")
@@ -537,6 +608,11 @@ class Estimator:
         shape_deg = o.fit_degree
 
         phi, theta, psi = pose0
+        # Vertical curvature of the surface the points are projected onto (1/m).
+        use_sag = o.vertical_curvature and o.refine_iterations > 0
+        zeta_prior, zeta_prior_sigma = zeta0
+        zeta = float(np.clip(zeta_prior, -_ZETA_MAX, _ZETA_MAX)) if use_sag else 0.0
+        sag = zeta if use_sag else None
         iterations = 0
         if o.refine_iterations == 0:
             # ---- the paper's single pass: roll in this BEV, vanishing point of image lines ----
@@ -552,7 +628,7 @@ class Estimator:
             if dbg is not None:
                 dbg.cross_rows_v = vs
                 dbg.image_lines = lines_img
-            H, _ = self.height_of(phi, theta, psi)
+            H, x0 = self.surface_of(phi, theta, psi)
             model = self._model(edges, _R_o_from_cp(phi, theta, psi), H, shape_deg, bev.grid)
             x_rows = self._cross_x(model)
             if x_rows is None:
@@ -561,30 +637,42 @@ class Estimator:
             step = math.inf
             for it in range(o.refine_iterations):
                 iterations = it + 1
-                H, _ = self.height_of(phi, theta, psi)
+                H, x0 = self.surface_of(phi, theta, psi)
                 R = _R_o_from_cp(phi, theta, psi)
-                model = self._model(edges, R, H, shape_deg, bev.grid, select=it == 0)
+                sag = zeta if use_sag else None
+                model = self._model(edges, R, H, shape_deg, bev.grid, select=it == 0, zeta=sag, x0=x0,
+                                    zeta_prior=zeta0)
                 shape_deg = model.c.size + 1       # the degree chosen in the first pass is kept
-                dmodel = model if o.vp == "tangent" else self._model(edges, R, H, 1, bev.grid)
-                # The two outer lines, as the paper (section V.B): the dashed centre line, seen in
-                # pieces, adds more error than information to the direction.
-                d = lane_direction(dmodel, H, lines=[0, dmodel.n_lines - 1])
-                if d is None:
-                    return VisionEstimate.invalid("no lane direction (vanishing point)", o.method, debug=dbg)
-                psi_new, theta_new = yaw_pitch_from_r3(R.T @ d)
-                x_rows = self._cross_x(model)
-                if x_rows is None:
-                    return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
-                alphas, coef = self._model_alphas(model, x_rows, use_eq10, ratio, H)
-                delta = self._solve_roll(alphas, coef)
-                step = max(abs(delta), abs(psi_new - psi), abs(theta_new - theta))
-                phi, theta, psi = phi - delta, theta_new, psi_new
+                dmodel = model if o.vp == "tangent" else self._model(edges, R, H, 1, bev.grid, zeta=sag, x0=x0,
+                                                                                  zeta_prior=zeta0)
+                if use_sag and model.dzeta != 0.0:
+                    # Far from the pose, a pitch error bends the projected lines in ways the
+                    # polynomials do not follow (a 1/x term), which zeta would take up: where
+                    # the step with zeta held is large, zeta stays where it is.
+                    held = model.with_dzeta_prior(0.0, 1e-9)
+                    dheld = held if o.vp == "tangent" else dmodel.with_dzeta_prior(0.0, 1e-9)
+                    upd = self._pose_update(held, dheld, R, H, x0, zeta, use_eq10, ratio)
+                    if isinstance(upd, str) or max(abs(upd[0]), abs(upd[1] - psi),
+                                                   abs(upd[2] - theta)) <= _ZETA_POSE_STEP_RAD:
+                        upd = self._pose_update(model, dmodel, R, H, x0, zeta, use_eq10, ratio)
+                    else:
+                        model, dmodel = held, dheld
+                else:
+                    upd = self._pose_update(model, dmodel, R, H, x0, zeta, use_eq10, ratio)
+                if isinstance(upd, str):
+                    return VisionEstimate.invalid(upd, o.method, debug=dbg)
+                delta, psi_new, theta_new, zeta_new, x_rows = upd
+                step = max(abs(delta), abs(psi_new - psi), abs(theta_new - theta),
+                           abs(zeta_new - zeta) * _ZETA_LEVER_M)
+                phi, theta, psi, zeta = phi - delta, theta_new, psi_new, zeta_new
                 if step < _CONVERGED_RAD:
                     break
             if step >= _REUSE_RAD:
                 # The last pass moved the pose: describe the lanes in the final frame.
-                H, _ = self.height_of(phi, theta, psi)
-                model = self._model(edges, _R_o_from_cp(phi, theta, psi), H, shape_deg, bev.grid, select=False)
+                H, x0 = self.surface_of(phi, theta, psi)
+                sag = zeta if use_sag else None
+                model = self._model(edges, _R_o_from_cp(phi, theta, psi), H, shape_deg, bev.grid, select=False,
+                                    zeta=sag, x0=x0, zeta_prior=zeta0)
             x_rows = self._cross_x(model)
             if x_rows is None:
                 return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
@@ -596,24 +684,24 @@ class Estimator:
         (roll, pitch, yaw), R_o_from_v = vehicle_from_camera_xyz(phi, theta, psi, self.mount.tilt_rad)
         cam_off = _camera_offset(R_o_from_v, self.mount)
         H = float(cam_off[2])
-        # Uncertainty: roll from the final cross-sections, pitch and yaw from the VP bounds.
-        alphas, coef = self._model_alphas(model, x_rows, use_eq10, ratio, H)
-        sig_a = self._model_alpha_sigmas(model, x_rows, use_eq10, H)
+        x_c = -float(cam_off[0])
+        heights = _heights(x_rows, H, x_c, zeta)
+        # Uncertainty: the lane model's covariance through the roll equation and the lane
+        # direction (first order), plus the painted widths' tolerance for eq. (8).
         sig_f = 0.0
         if not use_eq10 and o.marker_width_tolerance_m > 0:
             sig_f = o.marker_width_tolerance_m / H * math.hypot(1.0, ratio)
-        s_phi = roll_sigma(alphas, coef, 0.0, sig_a, sig_f)
-        s_psi, s_theta = self._vp_sigmas(model, phi, theta, psi, H, vp)
-        s_roll, s_pitch, s_yaw = _vehicle_sigmas(phi, theta, psi, s_phi, s_theta, s_psi, self.mount.tilt_rad)
+        cov_cam = self._camera_covariance(model, x_rows, use_eq10, ratio, heights, H, x_c,
+                                          _R_o_from_cp(phi, theta, psi), sig_f)
+        s_roll, s_pitch, s_yaw = _vehicle_sigmas(phi, theta, psi, cov_cam, self.mount.tilt_rad)
+        s_roll, s_pitch, s_yaw = (math.hypot(s, m) for s, m in zip((s_roll, s_pitch, s_yaw), _ANGLE_MODEL_SIGMA_RAD))
         # Curvature, lateral offset, spacing at the contact point, from the outermost lines used.
-        x_c = -float(cam_off[0])
         all_centres = [0.5 * float(model.y(2 * j, x_c) + model.y(2 * j + 1, x_c)) for j in range(n_lines)]
         centres = [all_centres[0], all_centres[-1]]
         offsets = tuple(c + float(cam_off[1]) for c in all_centres)
         curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
-        i_c = model.n_edges + model.n_lines
-        curvature_sigma = (2.0 / 100.0 * math.sqrt(max(model.cov[i_c, i_c], 0.0)) if model.c.size
-                           else math.nan)
+        curvature_sigma = self._curvature_sigma(model, x_c, n_lines, curvature)
+        zeta_sigma = model.zeta_free_sigma if math.isfinite(model.zeta_free_sigma) else model.sigma_dzeta
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
         # Eq. (14) as printed, with the fit residual as dp (BEV px) and the width tolerance as dw.
@@ -636,7 +724,8 @@ class Estimator:
             valid = not reason
         return VisionEstimate(
             roll, pitch, yaw, s_roll, s_pitch, s_yaw, valid,
-            curvature_1_m=curvature, curvature_sigma_1_m=curvature_sigma, lateral_offset_m=lateral,
+            curvature_1_m=curvature, curvature_sigma_1_m=curvature_sigma,
+            vertical_curvature_1_m=zeta, vertical_curvature_sigma_1_m=zeta_sigma, lateral_offset_m=lateral,
             line_spacing_m=spacing, line_offsets_m=offsets,
             camera_xyz_rad=(float(phi), float(theta), float(psi)), vp_px=(float(vp[0]), float(vp[1])),
             n_lines=n_lines, roll_equation="eq10" if use_eq10 else "eq8", edge_rms_px=rms_px,
@@ -644,6 +733,24 @@ class Estimator:
             method=o.method, reason=reason, debug=dbg)
 
     # ---- pieces ----
+
+    def _pose_update(self, model: LaneModel, dmodel: LaneModel, R, H: float, x0: float, zeta: float,
+                     use_eq10: bool, ratio: float):
+        """One refinement step from a lane model fitted at pose ``R``: ``(delta_roll, psi1, theta1,
+        zeta, cross-sections)``, or the reason why not (a string)."""
+        # The two outer lines, as the paper (section V.B): the dashed centre line, seen in
+        # pieces, adds more error than information to the direction.
+        d = lane_direction(dmodel, H, lines=[0, dmodel.n_lines - 1], x0_m=x0)
+        if d is None:
+            return "no lane direction (vanishing point)"
+        psi_new, theta_new = yaw_pitch_from_r3(R.T @ d)
+        x_rows = self._cross_x(model)
+        if x_rows is None:
+            return "the lines do not overlap along the road"
+        zeta_new = float(np.clip(zeta + model.dzeta, -_ZETA_MAX, _ZETA_MAX))
+        alphas, coef = self._model_alphas(model, x_rows, use_eq10, ratio, _heights(x_rows, H, x0, zeta_new))
+        delta = self._solve_roll(alphas, coef)
+        return delta, psi_new, theta_new, zeta_new, x_rows
 
     def _implausible(self, model: LaneModel, n_lines: int, spacing: float) -> str:
         """Why the lines found do not look like the road's markings at this pose ("" if they do):
@@ -690,13 +797,18 @@ class Estimator:
         p = np.stack([bev.u0 - al, bev.u0 - ar, bev.u0 - bl, bev.u0 - br], axis=-1)
         return np.arctan2(p, f_vx), coefficients_eq8(ratio)
 
-    def _model(self, edges: list[_Edge], R, H, deg, grid: BevGrid, select: bool = True) -> LaneModel:
+    def _model(self, edges: list[_Edge], R, H, deg, grid: BevGrid, select: bool = True, zeta: float | None = None,
+               x0: float = 0.0, zeta_prior: tuple[float, float] = (0.0, math.inf)) -> LaneModel:
+        """Lane model of the edges projected onto the road at pose ``R``, height ``H``; with
+        ``zeta`` (not None), onto the surface of that vertical curvature, fitting its correction
+        with the prior ``zeta_prior = (mean, sigma)`` (1/m)."""
         rays, bounds, steps = _stack_edges(edges)
-        x, y = ground_from_rays(rays, R, H)
+        z = 0.0 if zeta is None else zeta
+        x, y = ground_from_rays(rays, R, H, z, x0)
         from_image = edges[0].from_image
         if from_image:
             # Metres of lateral position per pixel along each cut (the measurement's direction).
-            _, y2 = ground_from_rays(rays + steps, R, H)
+            _, y2 = ground_from_rays(rays + steps, R, H, z, x0)
             q_all = np.abs(y2 - y)
         xs, ys, qs = [], [], []
         for k in range(len(edges)):
@@ -712,8 +824,19 @@ class Estimator:
         # BEV rows far away re-sample image rows (f_y H / x^2 rows per metre against 1 / dx);
         # cuts in the image are one per image row or column.
         independent = math.inf if from_image else self.camera.fy * H * grid.dx_m
-        return fit_lane_model(xs, ys, [e.line for e in edges], [e.side for e in edges], deg, independent,
-                              qs=qs if from_image else None, select=select)
+        model = fit_lane_model(xs, ys, [e.line for e in edges], [e.side for e in edges], deg, independent,
+                               qs=qs if from_image else None, select=select,
+                               sag=None if zeta is None else (H, x0, z))
+        if zeta is not None:
+            model = model.with_dzeta_prior(zeta_prior[0] - z, zeta_prior[1])
+            t = self.options.vertical_curvature_t_min
+            if abs(z + model.dzeta) < t * model.sigma_dzeta:
+                # Not significant: the road is taken as its tangent plane (the fit conditioned on
+                # zeta = 0); a free zeta would only add its noise to pitch and yaw.
+                free_sigma = model.sigma_dzeta
+                model = model.with_dzeta_prior(-z, 1e-9)
+                model.zeta_free_sigma = free_sigma
+        return model
 
     def _cross_x(self, model: LaneModel):
         """Cross-sections along the road: one at the farthest of the edges' near ends (the
@@ -731,31 +854,85 @@ class Estimator:
             return np.array([x_lo])
         return np.linspace(x_lo, x_hi, n + 2)[1:-1]
 
-    def _model_alphas(self, model: LaneModel, xs, use_eq10, ratio, H):
+    def _model_alphas(self, model: LaneModel, xs, use_eq10, ratio, heights):
         """Angles of the edges (eq. (8)) or line centres (eq. (10)) from the nadir at the
-        cross-sections ``xs``: ``atan(y / H)``."""
+        cross-sections ``xs``: ``atan(y / H(x))``, ``H(x)`` the camera's height above the road
+        there (:func:`_heights`; the angle of a ray does not depend on the surface it meets,
+        only the cross-section does)."""
         J = model.n_lines
+        h = np.asarray(heights, float).reshape(-1, 1)
         if use_eq10:
             Y = model.y_edges(np.arange(6), xs)
             p = 0.5 * (Y[0::2] + Y[1::2])
-            return np.arctan(p.T / H), coefficients_eq10()
+            return np.arctan(p.T / h), coefficients_eq10()
         j1 = J - 1
         Y = model.y_edges([0, 1, 2 * j1, 2 * j1 + 1], xs)
-        return np.arctan(Y.T / H), coefficients_eq8(ratio)
+        return np.arctan(Y.T / h), coefficients_eq8(ratio)
 
-    def _model_alpha_sigmas(self, model: LaneModel, xs, use_eq10, H):
+    def _camera_covariance(self, model: LaneModel, xs, use_eq10, ratio, heights, H, x0, R, sig_f):
+        """3x3 covariance of the camera's XYZ ``(phi1, theta1, psi1)`` from the lane model's
+        covariance, first order: the root of eqs. (8)/(10) at the cross-sections (implicit
+        function: ``d phi = -sum c_k sec^2(alpha_k) d alpha_k / sum c_k sec^2(alpha_k)``, all rows
+        and their correlations through the model), and the lane direction of the two outer lines
+        (central differences of :func:`lane_direction` in ``y_j(x0)``, ``y_j'(x0)``). ``sig_f``:
+        the painted widths' tolerance as an error of eq. (8), rad."""
         J = model.n_lines
-
-        def to_alpha(s, y):
-            return s * H / (H * H + y * y)
-
+        P = model.cov.shape[0]
+        xs = np.asarray(xs, float)
+        h = np.asarray(heights, float)
+        # ---- roll: rows d alpha_rk / d p ----
         if use_eq10:
-            cols = [to_alpha(0.5 * np.hypot(model.sigma_y(2 * j, xs), model.sigma_y(2 * j + 1, xs)),
-                             0.5 * (model.y(2 * j, xs) + model.y(2 * j + 1, xs))) for j in range(3)]
+            groups = [(2 * j, 2 * j + 1) for j in range(3)]
+            coef = coefficients_eq10()
         else:
             j1 = J - 1
-            cols = [to_alpha(model.sigma_y(k, xs), model.y(k, xs)) for k in (0, 1, 2 * j1, 2 * j1 + 1)]
-        return np.stack(cols, axis=-1)
+            groups = [(0,), (1,), (2 * j1,), (2 * j1 + 1,)]
+            coef = coefficients_eq8(ratio)
+        u2 = (xs - x0) ** 2 / 2.0
+        d_alpha = np.zeros((xs.size, len(groups), P))
+        alphas = np.zeros((xs.size, len(groups)))
+        for g, ks in enumerate(groups):
+            y = np.mean([model.y(k, xs) for k in ks], axis=0)
+            rows = np.mean([model._row(k, xs) for k in ks], axis=0)       # (n_x, P)
+            den = h * h + y * y
+            d_alpha[:, g, :] = rows * (h / den)[:, None]
+            if model.has_sag:
+                d_alpha[:, g, model.i_dzeta] += y * u2 / den              # through H(x)
+            alphas[:, g] = np.arctan(y / h)
+        q = 1.0 / np.cos(alphas) ** 2
+        cq = coef[None, :] * q
+        total = cq.sum()
+        row_phi = -np.einsum("rg,rgp->p", cq, d_alpha) / total if total != 0 else np.full(P, np.inf)
+        # ---- pitch and yaw: the lane direction of the outer lines ----
+        outer = (0, J - 1)
+        M = np.zeros((4, P))
+        vals = np.zeros(4)
+        for n, j in enumerate(outer):
+            ks = np.flatnonzero(model.edge_line == j)
+            M[2 * n] = np.mean([model._row(k, x0)[0] for k in ks], axis=0)
+            vals[2 * n] = float(np.mean([model.y(k, x0) for k in ks]))
+            M[2 * n + 1] = model.slope_row(j, x0)
+            vals[2 * n + 1] = float(model.slope(j, x0))
+        e = np.array([1e-4, 1e-6, 1e-4, 1e-6])               # m, rad
+        D = np.concatenate([np.diag(e), -np.diag(e)]) + vals     # (8, 4)
+        yp = _yaw_pitch_two_lines(D, H, x0, R)                   # (8, 2): psi, theta
+        J_yp = ((yp[:4] - yp[4:]) / (2.0 * e[:, None])).T        # (2, 4)
+        rows_ang = J_yp @ M                                      # (2, P)
+        Jc = np.stack([row_phi, rows_ang[1], rows_ang[0]])       # phi, theta, psi
+        cov = Jc @ model.cov @ Jc.T
+        cov[0, 0] += sig_f**2
+        return cov
+
+    def _curvature_sigma(self, model: LaneModel, x_c: float, n_lines: int, curvature: float) -> float:
+        """1-sigma of the reported curvature: the lane model's covariance (vertical curvature
+        included) and the model terms of :data:`CURVATURE_MODEL_SIGMA`."""
+        if not model.c.size:
+            fit = 0.0
+        else:
+            row = np.mean([model.curvature_row(j, x_c) for j in (0, n_lines - 1)], axis=0)
+            fit = float(row @ model.cov @ row)
+        floor, rel = CURVATURE_MODEL_SIGMA
+        return math.sqrt(max(fit, 0.0) + floor**2 + (rel * curvature) ** 2)
 
     def _vp_image_lines(self, bev: Bev, lines: list[Marker]):
         """The paper's vanishing point: a straight line through each marker's centre in the
@@ -779,32 +956,6 @@ class Estimator:
             raise VisionError("lane lines parallel in the image: no vanishing point")
         return p[:2] / p[2], segs
 
-    def _vp_sigmas(self, model: LaneModel, phi, theta, psi, H, vp):
-        """Section V.B: bounds of the vanishing point from two points on each outer line,
-        moved by their 1-sigma (px), turned into 1-sigma of yaw and pitch (half the bound)."""
-        cam = self.camera
-        R_cp_from_o = _R_o_from_cp(phi, theta, psi).T
-        J = model.n_lines
-        P, Q = [], []
-        for j in (J - 1, 0):      # right line: A, B; left line: C, D
-            kl, kr = 2 * j, 2 * j + 1
-            x_lo = max(model.x_min[kl], model.x_min[kr])
-            x_hi = min(model.x_max[kl], model.x_max[kr])
-            xs = np.array([x_lo + 0.1 * (x_hi - x_lo), x_hi - 0.1 * (x_hi - x_lo)])
-            y = 0.5 * (model.y(kl, xs) + model.y(kr, xs))
-            s = 0.5 * np.hypot(model.sigma_y(kl, xs), model.sigma_y(kr, xs))
-            for x_, y_, s_ in zip(xs, y, s):
-                P.append((x_, y_, -H))
-                Q.append((x_, y_ + max(s_, 1e-6), -H))
-        p = np.asarray(P) @ (cam.K @ R_cp_from_o).T
-        q = np.asarray(Q) @ (cam.K @ R_cp_from_o).T
-        a = p[:, :2] / p[:, 2:3]
-        dp = float(np.sqrt(np.mean(np.sum((q[:, :2] / q[:, 2:3] - a) ** 2, axis=1))))
-        dx, dy, _ = vp_bounds(a[0], a[1], a[2], a[3], dp)
-        if not (math.isfinite(dx) and math.isfinite(dy)):
-            return math.inf, math.inf
-        return angle_sigmas(cam.K, np.asarray(vp, float), 0.5 * dx, 0.5 * dy)
-
 
 _STACK_CACHE: dict = {}
 
@@ -823,16 +974,35 @@ def _stack_edges(edges: list[_Edge]):
     return rays, bounds, steps
 
 
-def _vehicle_sigmas(phi, theta, psi, s_phi, s_theta, s_psi, tilt):
-    """Propagate the camera's XYZ sigmas to the vehicle's ZYX angles (central differences)."""
+def _vehicle_sigmas(phi, theta, psi, cov_cam, tilt):
+    """Propagate the covariance of the camera's XYZ angles to the 1-sigma of the vehicle's ZYX
+    angles (central differences of eq. (22))."""
     e = 1e-6
     D = np.concatenate([np.eye(3), -np.eye(3)]) * e + np.array([phi, theta, psi])
     R = matrix_from_euler("xyz", D[:, 0], D[:, 1], D[:, 2]) @ Ry(tilt).T
     roll, pitch, yaw = rpy_from_R(R)
     A = np.stack([roll, pitch, yaw], axis=-1)            # (6, 3)
     J = ((A[:3] - A[3:]) / (2 * e)).T                    # d(vehicle) / d(camera)
-    cov = J @ np.diag([s_phi**2, s_theta**2, s_psi**2]) @ J.T
+    cov = J @ np.asarray(cov_cam, float) @ J.T
     return tuple(float(math.sqrt(max(cov[i, i], 0.0))) for i in range(3))
+
+
+def _yaw_pitch_two_lines(D, H, x0, R_o_from_cp):
+    """``(psi1, theta1)`` rows for rows ``(y_L, b_L, y_R, b_R)`` of ``D``: :func:`lane_direction`
+    of two lines, vectorised (for the covariance)."""
+    D = np.atleast_2d(D)
+    n1 = np.stack([H * D[:, 1], np.full(len(D), -H), x0 * D[:, 1] - D[:, 0]], -1)
+    n2 = np.stack([H * D[:, 3], np.full(len(D), -H), x0 * D[:, 3] - D[:, 2]], -1)
+    d = np.cross(n1, n2)
+    d *= np.where(d[:, :1] < 0, -1.0, 1.0) / np.linalg.norm(d, axis=1, keepdims=True)
+    r = d @ np.asarray(R_o_from_cp)                      # R^T d, row-wise
+    return np.stack([np.arctan2(r[:, 0], r[:, 2]), -np.arcsin(np.clip(r[:, 1], -1.0, 1.0))], -1)
+
+
+def _heights(xs, H: float, x0: float, zeta: float) -> np.ndarray:
+    """Camera height above the road at ``xs`` (m ahead of the nadir): ``H - zeta (x - x0)^2 / 2``."""
+    xs = np.asarray(xs, float)
+    return H - 0.5 * zeta * (xs - x0) ** 2
 
 
 def _seed_rpy(seed):

@@ -108,8 +108,16 @@ def pixels_from_rays(camera: Camera, rays_cp) -> np.ndarray:
     return camera.project(rays_cp)
 
 
-def ground_from_rays(rays_cp, R_o_from_cp, height_m: float):
+def ground_from_rays(rays_cp, R_o_from_cp, height_m: float, vertical_curvature_1_m: float = 0.0,
+                     x0_m: float = 0.0):
     """Road points hit by rays, in the road-aligned frame at the camera's nadir.
+
+    The road is the plane ``z = -H`` or, with a vertical curvature ``zeta``, the surface
+    ``z = -H + zeta (x - x0)^2 / 2`` tangent to that plane at ``x0`` (a sag for ``zeta > 0``, a
+    crest for ``zeta < 0``; on a curve of curvature ``kappa`` banked by ``b`` the road seen from
+    its tangent plane has ``zeta = -kappa sin(b)``, see :mod:`vision.lanemodel`). The ray
+    ``t r`` meets it where ``zeta/2 r_x^2 t^2 - (r_z + zeta x0 r_x) t + zeta x0^2/2 - H = 0``;
+    the root taken is the one that tends to the plane's ``t = H / -r_z`` as ``zeta -> 0``.
 
     Parameters
     ----------
@@ -118,17 +126,33 @@ def ground_from_rays(rays_cp, R_o_from_cp, height_m: float):
     R_o_from_cp : (3, 3) array
         Camera orientation relative to the road.
     height_m : float
-        Optical centre above the road plane, m.
+        Optical centre above the road's tangent plane, m.
+    vertical_curvature_1_m : float
+        ``zeta``, 1/m (0: a plane).
+    x0_m : float
+        Where the surface touches the plane (the contact point), m ahead of the nadir.
 
     Returns
     -------
     x_m, y_m : arrays
-        Forward and left coordinates, m; NaN for rays at or above the horizon.
+        Forward and left coordinates, m; NaN for rays that miss the road (at or above the
+        horizon of a plane, over a crest).
     """
     r = np.asarray(rays_cp, dtype=float) @ np.asarray(R_o_from_cp).T
-    down = -r[..., 2]
+    zeta = float(vertical_curvature_1_m)
+    if zeta == 0.0:
+        down = -r[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(down > 1e-9, height_m / down, np.nan)
+        return t * r[..., 0], t * r[..., 1]
+    x0 = float(x0_m)
+    A = 0.5 * zeta * r[..., 0] ** 2
+    B = -(r[..., 2] + zeta * x0 * r[..., 0])
+    C = 0.5 * zeta * x0 * x0 - height_m
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(down > 1e-9, height_m / down, np.nan)
+        disc = B * B - 4.0 * A * C
+        den = -B - np.sqrt(disc)              # the planar root's branch: t = 2C / den
+        t = np.where((disc >= 0) & (den < -1e-12), 2.0 * C / den, np.nan)
     return t * r[..., 0], t * r[..., 1]
 
 

@@ -27,11 +27,29 @@ pixel along the cut), fitted to the squared residuals of a first pass (feasible 
 least squares): on the rendered drives BEV residuals are nearly constant in metres up to 20 m,
 so ``1 / x^2`` weights would throw most of the data away. Points beyond 4 sigma of that model
 after the first pass get no weight in the second.
+
+Vertical curvature (beyond the paper). The road is not a plane: on a curve of curvature
+``kappa`` banked by ``b`` the surface seen from its tangent plane at the vehicle drops by
+``z(x) = -sin(b) kappa x^2 / 2`` (to first order whatever the lateral position: the lateral axis
+is tilted by the bank while the curve bends it), and a sag or crest of the road adds its own
+``x^2 / 2`` term. The points are therefore projected onto ``z = -H + zeta (x - x0)^2 / 2``
+(:func:`vision.ipm.ground_from_rays`) with the current ``zeta``, and the fit carries one more
+column, the first-order change of the projected points when ``zeta`` is off by ``dzeta``:
+
+    y_k(x) + dzeta u^2 / (2 D) (y_k(x) - x y_k'(x)),   u = x - x0,   D = H - zeta u^2 / 2 + zeta u x
+
+(``y - x y' = a_k - s_j (c_2 t^2 + 2 c_3 t^3)``, from the previous pass; the raw ``y`` in the
+first). A planar IPM reads a sag as the lines spreading apart quadratically, in proportion to
+their lateral position ``a_j``; a pitch error spreads them linearly (``b_j`` grows with ``a_j``)
+and a horizontal curve bends them all alike: the three are separable with two lines or more.
+The estimator updates ``zeta += dzeta`` and projects again until it stops moving, so the
+linearisation only has to point the right way.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numba as nb
 import numpy as np
@@ -58,10 +76,66 @@ class LaneModel:
     rms_m: float             # weighted RMS residual scaled to 10 m, m
     n: int
     line_scale: np.ndarray = None  # (J,) shape scale of each line (concentric lines)  # type: ignore[assignment]
+    #: Correction ``dzeta`` of the vertical curvature the points were projected with, 1/m (last
+    #: parameter of ``cov``); 0 without the column.
+    dzeta: float = 0.0
+    #: ``(H, x0, zeta)`` of the projection when the fit has the vertical-curvature column, else None.
+    sag: tuple | None = None
+    #: 1-sigma of ``zeta`` before it was set to 0 for want of significance (NaN: it was not).
+    zeta_free_sigma: float = math.nan
 
     def __post_init__(self) -> None:
         if self.line_scale is None:
             self.line_scale = np.ones(self.b.size)
+
+    @property
+    def has_sag(self) -> bool:
+        return self.sag is not None
+
+    @property
+    def i_dzeta(self) -> int:
+        """Index of ``dzeta`` in ``cov`` (-1 without it)."""
+        return self.a.size + self.b.size + self.c.size if self.sag is not None else -1
+
+    @property
+    def sigma_dzeta(self) -> float:
+        """1-sigma of ``dzeta``, 1/m (0 without the column)."""
+        i = self.i_dzeta
+        return float(np.sqrt(max(self.cov[i, i], 0.0))) if i >= 0 else 0.0
+
+    def with_dzeta_prior(self, dzeta_1_m: float, sigma_1_m: float) -> "LaneModel":
+        """The model updated with the prior ``dzeta ~ N(dzeta_1_m, sigma_1_m^2)`` (a scalar
+        Kalman update of all parameters: exact for the linear model, so a frame whose lines
+        hardly see the vertical curvature keeps the prior's and says so in ``cov``)."""
+        i = self.i_dzeta
+        if i < 0 or not math.isfinite(sigma_1_m) or sigma_1_m <= 0:
+            return self
+        Ce = self.cov[:, i]
+        s = float(Ce[i]) + sigma_1_m**2
+        g = Ce / s
+        p = np.concatenate([self.a, self.b, self.c, [self.dzeta]])
+        p = p + g * (dzeta_1_m - self.dzeta)
+        cov = self.cov - np.outer(g, Ce)
+        K, J, nc = self.a.size, self.b.size, self.c.size
+        return replace(self, a=p[:K], b=p[K:K + J], c=p[K + J:K + J + nc], dzeta=float(p[i]), cov=cov)
+
+    def zeta_column(self, k: int, x) -> np.ndarray:
+        """``u^2 / (2 D) (y_k - x y_k')`` at ``x``: the change of the projected ``y`` of edge ``k``
+        per unit of ``dzeta`` (module docstring)."""
+        x = np.asarray(x, float)
+        if self.sag is None:
+            return np.zeros_like(x)
+        return sag_weight(x, *self.sag) * self._flat(k, x)
+
+    def _flat(self, k: int, x):
+        """``y_k(x) - x y_k'(x)`` (the slope ``b`` drops out)."""
+        j = self.edge_line[k]
+        t = np.asarray(x, float) / _XS
+        out = np.full_like(t, float(self.a[k]))
+        for i, ci in enumerate(self.c):
+            p = i + 2
+            out = out - self.line_scale[j] * (p - 1) * ci * t**p
+        return out
 
     @property
     def n_edges(self) -> int:
@@ -118,13 +192,40 @@ class LaneModel:
         return self.line_scale[j] * float(self._shape_d(x, 2)) / (1.0 + s1 * s1) ** 1.5
 
     def _row(self, k: int, x):
+        """Derivatives of ``y(k, x)`` with respect to the parameters ``[a, b, c, dzeta]``: the
+        road's lines do not depend on ``dzeta`` (it moves the projected points, not the lines),
+        but through ``cov`` their uncertainty includes it."""
         x = np.atleast_1d(np.asarray(x, float))
         K, J = self.n_edges, self.n_lines
-        R = np.zeros((x.size, K + J + self.c.size))
+        R = np.zeros((x.size, self.cov.shape[0]))
         R[:, k] = 1.0
         R[:, K + self.edge_line[k]] = x
         for i in range(self.c.size):
             R[:, K + J + i] = self.line_scale[self.edge_line[k]] * (x / _XS) ** (i + 2)
+        return R
+
+    def slope_row(self, j: int, x: float) -> np.ndarray:
+        """Derivatives of ``slope(j, x)`` with respect to the parameters."""
+        K, J = self.n_edges, self.n_lines
+        R = np.zeros(self.cov.shape[0])
+        R[K + j] = 1.0
+        t = float(x) / _XS
+        for i in range(self.c.size):
+            p = i + 2
+            R[K + J + i] = self.line_scale[j] * p * t ** (p - 1) / _XS
+        return R
+
+    def curvature_row(self, j: int, x: float) -> np.ndarray:
+        """Derivatives of ``curvature(j, x)`` (to first order in the slope) with respect to the
+        parameters."""
+        K, J = self.n_edges, self.n_lines
+        R = np.zeros(self.cov.shape[0])
+        t = float(x) / _XS
+        s1 = float(self.slope(j, x))
+        g = self.line_scale[j] / (1.0 + s1 * s1) ** 1.5
+        for i in range(self.c.size):
+            p = i + 2
+            R[K + J + i] = g * p * (p - 1) * t ** (p - 2) / _XS**2
         return R
 
     def sigma_y(self, k: int, x) -> np.ndarray:
@@ -137,9 +238,15 @@ class LaneModel:
         return float(np.sqrt(max(self.cov[i, i], 0.0)))
 
 
+def sag_weight(x, height_m: float, x0_m: float, zeta_1_m: float):
+    """``u^2 / (2 D)``, ``u = x - x0``, ``D = H - zeta u^2 / 2 + zeta u x`` (module docstring)."""
+    u = np.asarray(x, float) - x0_m
+    return u * u / (2.0 * (height_m - 0.5 * zeta_1_m * u * u + zeta_1_m * u * np.asarray(x, float)))
+
+
 def fit_lane_model(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape_degree: int,
                    rows_per_m: float, *, select: bool = True, t_min: float = 3.0,
-                   qs: list[np.ndarray] | None = None) -> LaneModel:
+                   qs: list[np.ndarray] | None = None, sag: tuple[float, float, float] | None = None) -> LaneModel:
     """Weighted least squares of the joint model; with ``select``, straight lines when no shape
     term is significant (``|c| > t_min sigma_c``, from the highest down, on the inflated
     covariance), else the full ``shape_degree``.
@@ -148,8 +255,15 @@ def fit_lane_model(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_s
     the cubic term (a clothoid's changing curvature) is rarely significant on its own, yet
     leaving it out biases the tangent by up to 0.2 deg in a clothoid (measured on Table I
     scenario 2: yaw RMSE 0.056 deg with a term-by-term test, 0.039 deg keeping the cubic).
+
+    ``sag = (H, x0, zeta)``: the points were projected onto the surface of vertical curvature
+    ``zeta`` (:func:`vision.ipm.ground_from_rays`); the fit adds the column of ``dzeta`` (module
+    docstring). It is kept whatever the shape selected.
     """
-    m = _fit(xs, ys, edge_line, edge_side, shape_degree, rows_per_m, qs)
+    zw = None
+    if sag is not None:
+        zw = [sag_weight(xi, *sag) for xi in xs]
+    m = _fit(xs, ys, edge_line, edge_side, shape_degree, rows_per_m, qs, zw, sag)
     if not select or m.c.size == 0:
         return m
     full = m
@@ -157,14 +271,15 @@ def fit_lane_model(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_s
         i = m.a.size + m.b.size + m.c.size - 1
         if abs(m.c[-1]) > t_min * np.sqrt(max(m.cov[i, i], 0.0)):
             break
-        m = _fit(xs, ys, edge_line, edge_side, m.c.size, rows_per_m, qs)
+        m = _fit(xs, ys, edge_line, edge_side, m.c.size, rows_per_m, qs, zw, sag)
     # A curve keeps its full shape: the rate of change of curvature (clothoid) is rarely
     # significant on its own, but leaving it out biases the tangent at the vehicle.
     return full if m.c.size >= 1 else m
 
 
 def _fit(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape_degree: int,
-         rows_per_m: float, qs: list[np.ndarray] | None = None) -> LaneModel:
+         rows_per_m: float, qs: list[np.ndarray] | None = None, zw: list[np.ndarray] | None = None,
+         sag: tuple | None = None) -> LaneModel:
     """Weighted least squares of the joint model (module docstring).
 
     Parameters
@@ -182,6 +297,9 @@ def _fit(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape
         Per point, the metres of lateral position per unit of measurement error (for cuts in the
         image, metres per pixel along the cut); the noise model is ``s_b^2 + s_i^2 q^2``.
         Default ``q = x``.
+    zw, sag : optional
+        Per point, ``u^2 / (2 D)`` of the vertical-curvature column (:func:`sag_weight`), and the
+        projection's ``(H, x0, zeta)``; None: no column.
     """
     K = len(xs)
     edge_line = np.asarray(edge_line, np.int64)
@@ -189,30 +307,64 @@ def _fit(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape
     nc = max(0, shape_degree - 1)
     x = np.concatenate(xs).astype(np.float64)
     y = np.concatenate(ys).astype(np.float64)
-    if x.size < K + J + nc + 2:
+    nz = 0 if zw is None else 1
+    if x.size < K + J + nc + nz + 2:
         raise VisionError("too few edge points for the lane model")
     counts = np.array([len(xi) for xi in xs], np.int64)
     k_of = np.repeat(np.arange(K, dtype=np.int64), counts)
     q = x if qs is None else np.concatenate(qs).astype(np.float64)
-    ok, p, cov, s2, scale = _fit_core(x, y, q, k_of, edge_line, K, J, nc, float(min(rows_per_m, 1e300)))
+    z = np.concatenate(zw).astype(np.float64) if zw is not None else np.zeros(0)
+    ok, p, cov, s2, scale = _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, float(min(rows_per_m, 1e300)))
     if not ok:
         raise VisionError("lane model is singular (an edge without points?)")
     x_min = np.array([float(xi.min()) for xi in xs])
     x_max = np.array([float(xi.max()) for xi in xs])
-    return LaneModel(p[:K], p[K:K + J], p[K + J:], cov, edge_line, np.asarray(edge_side, int), x_min,
-                     x_max, float(np.sqrt(s2)), int(x.size), scale)
+    return LaneModel(p[:K], p[K:K + J], p[K + J:K + J + nc], cov, edge_line, np.asarray(edge_side, int), x_min,
+                     x_max, float(np.sqrt(s2)), int(x.size), scale,
+                     float(p[K + J + nc]) if nz else 0.0, tuple(float(v) for v in sag) if nz else None)
 
 
 @nb.njit(cache=True)
-def _fit_core(x, y, q, k_of, edge_line, K, J, nc, rows_per_m):  # pragma: no cover (numba)
+def _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz):  # pragma: no cover (numba)
+    j = edge_line[k_of[i]]
+    pred = p[k_of[i]] + p[K + j] * t[i]
+    tp = t[i] * t[i]
+    for c in range(nc):
+        pred += scale[j] * p[K + J + c] * tp
+        tp *= t[i]
+    if nz:
+        pred += p[K + J + nc] * zc[i]
+    return pred
+
+
+@nb.njit(cache=True)
+def _zeta_column(p, y, t, z, k_of, edge_line, scale, zc, K, J, nc, first):  # pragma: no cover (numba)
+    """``zc = z (y - x y')``: from the data's own ``y`` in the first pass, else from ``p``."""
+    for i in range(t.shape[0]):
+        if first:
+            zc[i] = z[i] * y[i]
+            continue
+        k = k_of[i]
+        j = edge_line[k]
+        f = p[k]
+        tp = t[i] * t[i]
+        for c in range(nc):
+            f -= scale[j] * (c + 1) * p[K + J + c] * tp
+            tp *= t[i]
+        zc[i] = z[i] * f
+
+
+@nb.njit(cache=True)
+def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma: no cover (numba)
     """Two passes of weighted normal equations; returns ``(ok, p, cov, s2, line_scale)``.
 
     Pass 1: weights ``indep(x)``. Pass 2: ``indep(x) / var(x)`` with ``var = s_b^2 + s_i^2 x^2``
     fitted to pass 1's squared residuals, and the shape columns of line ``j`` scaled by
     ``1 / (1 - kappa0 a_j)`` (concentric lines). Slopes and the shape use ``t = x / 10``.
+    With ``nz = 1`` the last parameter is ``dzeta``, column ``z (y - x y')`` (module docstring).
     """
     n = x.shape[0]
-    P = K + J + nc
+    P = K + J + nc + nz
     t = x / 10.0
     indep = np.empty(n)
     for i in range(n):
@@ -221,6 +373,9 @@ def _fit_core(x, y, q, k_of, edge_line, K, J, nc, rows_per_m):  # pragma: no cov
     scale = np.ones(J)
     p = np.zeros(P)
     Ai = np.zeros((P, P))
+    zc = np.zeros(n)
+    if nz:
+        _zeta_column(p, y, t, z, k_of, edge_line, scale, zc, K, J, nc, True)
     for npass in range(2):
         if npass == 1:
             # residuals of pass 1 -> variance model and concentric scale
@@ -231,13 +386,7 @@ def _fit_core(x, y, q, k_of, edge_line, K, J, nc, rows_per_m):  # pragma: no cov
             b1 = 0.0
             mr2 = 0.0
             for i in range(n):
-                j = edge_line[k_of[i]]
-                pred = p[k_of[i]] + p[K + j] * t[i]
-                tp = t[i] * t[i]
-                for c in range(nc):
-                    pred += scale[j] * p[K + J + c] * tp
-                    tp *= t[i]
-                r = y[i] - pred
+                r = y[i] - _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz)
                 g0 = indep[i]
                 g1 = indep[i] * q[i] * q[i]
                 rr = indep[i] * r * r
@@ -256,13 +405,7 @@ def _fit_core(x, y, q, k_of, edge_line, K, J, nc, rows_per_m):  # pragma: no cov
                 w[i] = indep[i] / var
             # Outliers (beyond 4 sigma of the noise model) get no weight in the second pass.
             for i in range(n):
-                j = edge_line[k_of[i]]
-                pred = p[k_of[i]] + p[K + j] * t[i]
-                tp = t[i] * t[i]
-                for c in range(nc):
-                    pred += scale[j] * p[K + J + c] * tp
-                    tp *= t[i]
-                r = y[i] - pred
+                r = y[i] - _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz)
                 if r * r * w[i] > 16.0 * indep[i]:
                     w[i] = 0.0
             if nc > 0:
@@ -276,34 +419,41 @@ def _fit_core(x, y, q, k_of, edge_line, K, J, nc, rows_per_m):  # pragma: no cov
                             ca += 1
                     a_line = sa / max(ca, 1)
                     scale[j] = 1.0 / min(max(1.0 - kappa0 * a_line, 0.5), 2.0)
+            if nz:
+                _zeta_column(p, y, t, z, k_of, edge_line, scale, zc, K, J, nc, False)
         wm = w.mean()
         for i in range(n):
             w[i] /= wm
         A = np.zeros((P, P))
         rhs = np.zeros(P)
         col = np.zeros(P)
+        idx = np.zeros(P, np.int64)
         for i in range(n):
             k = k_of[i]
             j = edge_line[k]
-            # the non-zero columns of row i: a_k, b_j, shape
-            idx0 = k
-            idx1 = K + j
+            # the non-zero columns of row i: a_k, b_j, shape, dzeta
             wi = w[i]
             yi = y[i]
+            idx[0] = k
             col[0] = 1.0
+            idx[1] = K + j
             col[1] = t[i]
             tp = t[i] * t[i]
             for c in range(nc):
+                idx[2 + c] = K + J + c
                 col[2 + c] = scale[j] * tp
                 tp *= t[i]
             m = 2 + nc
+            if nz:
+                idx[m] = K + J + nc
+                col[m] = zc[i]
+                m += 1
             for u in range(m):
-                iu = idx0 if u == 0 else (idx1 if u == 1 else K + J + u - 2)
+                iu = idx[u]
                 wu = wi * col[u]
                 rhs[iu] += wu * yi
                 for v in range(m):
-                    iv = idx0 if v == 0 else (idx1 if v == 1 else K + J + v - 2)
-                    A[iu, iv] += wu * col[v]
+                    A[iu, idx[v]] += wu * col[v]
         if np.abs(np.linalg.det(A)) < 1e-300:
             return False, p, Ai, 0.0, scale
         Ai = np.linalg.inv(A)
@@ -314,13 +464,7 @@ def _fit_core(x, y, q, k_of, edge_line, K, J, nc, rows_per_m):  # pragma: no cov
     den = 0.0
     prev_rw = 0.0
     for i in range(n):
-        j = edge_line[k_of[i]]
-        pred = p[k_of[i]] + p[K + j] * t[i]
-        tp = t[i] * t[i]
-        for c in range(nc):
-            pred += scale[j] * p[K + J + c] * tp
-            tp *= t[i]
-        r = y[i] - pred
+        r = y[i] - _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz)
         s2 += w[i] * r * r
         rw = r * np.sqrt(w[i])
         den += rw * rw
@@ -333,28 +477,30 @@ def _fit_core(x, y, q, k_of, edge_line, K, J, nc, rows_per_m):  # pragma: no cov
     # slopes were fitted per t = x / 10: back to per metre
     for j in range(J):
         p[K + j] /= 10.0
-        for q in range(P):
-            cov[K + j, q] /= 10.0
-            cov[q, K + j] /= 10.0
+        for q_ in range(P):
+            cov[K + j, q_] /= 10.0
+            cov[q_, K + j] /= 10.0
     return True, p, cov, s2, scale
 
 
-def lane_direction(model: LaneModel, height_m: float, lines=None) -> np.ndarray | None:
-    """Common direction of the lane lines at the vehicle (``x = 0``) in the current road frame
-    (unit, forward).
+def lane_direction(model: LaneModel, height_m: float, lines=None, x0_m: float = 0.0) -> np.ndarray | None:
+    """Common direction of the lane lines at the vehicle (``x = x0``, the contact point) in the
+    current road frame (unit, forward).
 
-    Each line's tangent at ``x = 0`` (through ``(0, y_j, -H)``, direction ``(1, y'_j, 0)``) and the
-    optical centre span a plane with normal ``n_j = (H y'_j, -H, -y_j)``; the lane direction is
-    orthogonal to all of them (weighted by the inverse 1-sigma of the line's slope; least squares
-    for three lines). Returns None when the normals do not determine it.
+    Each line's tangent at ``x0`` (through ``(x0, y_j, -H)``, direction ``(1, y'_j, 0)``: the road
+    touches the plane ``z = -H`` there) and the optical centre span a plane with normal
+    ``n_j = (H y'_j, -H, x0 y'_j - y_j)``; the lane direction is orthogonal to all of them
+    (weighted by the inverse 1-sigma of the line's slope; least squares for three lines).
+    Returns None when the normals do not determine it.
     """
     J = model.n_lines
     lines = range(J) if lines is None else lines
     rows = []
     for j in lines:
-        yj = float(model.a[model.edge_line == j].mean())     # the shape is 0 at x = 0
-        bj = float(model.b[j])                                # and so is its slope
-        n = np.array([height_m * bj, -height_m, -yj])
+        ks = np.flatnonzero(model.edge_line == j)
+        yj = float(np.mean([model.y(k, x0_m) for k in ks]))
+        bj = float(model.slope(j, x0_m))
+        n = np.array([height_m * bj, -height_m, x0_m * bj - yj])
         rows.append(n / (np.sqrt(n @ n) * max(model.sigma_b(j), 1e-9)))
     if len(rows) < 2:
         return None

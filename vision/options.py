@@ -91,6 +91,24 @@ class EstimatorOptions:
         Warp the image again at the new pose when it is farther than this from the BEV's pose
         (any angle), up to ``max_warps`` warps in all; ``inf`` never.
     max_warps : int
+    vertical_curvature : bool
+        Model the road as its tangent plane at the vehicle plus a height ``zeta x^2 / 2`` ahead
+        and estimate ``zeta`` with the lanes (:mod:`vision.lanemodel`): on banked curves
+        (``zeta = -kappa sin(bank)``) and over crests and sags a plane biases pitch, yaw and the
+        curvature. Needs ``refine_iterations > 0``; False: the road is a plane (the paper).
+    vertical_curvature_sigma_1_m : float
+        Prior of ``zeta`` without a previous frame: ``N(0, sigma^2)``, 1/m. Roads' crests and
+        sags have radii above 1000 m, and bank times curvature stays below 1e-3 1/m (7 deg at
+        125 m radius), so 1e-3 only keeps a frame whose lines hardly see ``zeta`` (two lines
+        close together, a short dash) from wandering off.
+    vertical_curvature_walk_1_m : float
+        Prior from the previous frame's estimate: its ``zeta`` with its 1-sigma grown by this
+        (1/m per frame; ``inf``: no memory). The road's ``zeta`` changes over tens of metres
+        (0 to 6e-4 1/m over a 70 m bank runoff, 1e-5 per frame at 80 km/h and 30 fps).
+    vertical_curvature_t_min : float
+        ``zeta`` within this many sigma of 0 is set to 0 (the fit conditioned on it): on a flat
+        road a free ``zeta`` only adds noise to pitch (its errors, correlated over the 40 m of
+        road in view, do not average out from frame to frame). 0: always free.
 
     Uncertainty
     -----------
@@ -124,6 +142,10 @@ class EstimatorOptions:
     refine_iterations: int = 2
     rewarp_deg: float = 1.0
     max_warps: int = 3
+    vertical_curvature: bool = True
+    vertical_curvature_sigma_1_m: float = 1e-3
+    vertical_curvature_walk_1_m: float = 3e-5
+    vertical_curvature_t_min: float = 3.0
     marker_width_tolerance_m: float = 0.003
     damon_step_deg: float = 0.1
     damon_range_deg: float = 6.0
@@ -151,6 +173,11 @@ class EstimatorOptions:
         if not self.rewarp_deg > 0:
             raise VisionError(f"vision option rewarp_deg must be > 0 (inf: never), got {self.rewarp_deg}")
         _range("marker_width_tolerance_m", self.marker_width_tolerance_m, 0.0, 0.2)
+        _range("vertical_curvature_sigma_1_m", self.vertical_curvature_sigma_1_m, 1e-6, 0.1)
+        _range("vertical_curvature_t_min", self.vertical_curvature_t_min, 0.0, 100.0)
+        if not self.vertical_curvature_walk_1_m > 0:
+            raise VisionError("vision option vertical_curvature_walk_1_m must be > 0 (inf: no memory), "
+                              f"got {self.vertical_curvature_walk_1_m}")
         _range("damon_step_deg", self.damon_step_deg, 1e-3, 5.0)
         _range("damon_range_deg", self.damon_range_deg, 0.1, 120.0)
 
@@ -161,7 +188,7 @@ class EstimatorOptions:
         vanishing point, one pass."""
         base = cls(ipm_pose="nominal", edges="binary", edge_domain="bev", fit_degree=2, fit_range_m=500.0, cross_sections=1, solver="pade",
                    eq21=True, vp="lines", refine_iterations=0, rewarp_deg=math.inf, max_warps=1,
-                   known_widths=False)
+                   known_widths=False, vertical_curvature=False)
         return replace(base, **changes)
 
     @classmethod
