@@ -98,6 +98,10 @@ class VisionEstimate:
         banked curve). 0 with ``vertical_curvature=False``.
     vertical_curvature_sigma_1_m : float
         Its 1-sigma from the lane model's covariance, 1/m.
+    roll_lookahead_m : float
+        How far ahead of the vehicle's contact point the roll was measured, m: the mean distance
+        of the cross-sections. In a superelevation runoff the road there is banked differently
+        from under the wheels; the fusion filter models the measurement at that distance.
     lateral_offset_m : float
         Vehicle origin's offset from the midpoint between the outermost lines used, m, positive
         to the left (the road's centre line in the simulator's two- and three-line setups).
@@ -137,6 +141,7 @@ class VisionEstimate:
     curvature_sigma_1_m: float = math.nan
     vertical_curvature_1_m: float = math.nan
     vertical_curvature_sigma_1_m: float = math.nan
+    roll_lookahead_m: float = math.nan
     lateral_offset_m: float = math.nan
     line_spacing_m: float = math.nan
     line_offsets_m: tuple[float, ...] = ()
@@ -725,7 +730,8 @@ class Estimator:
         return VisionEstimate(
             roll, pitch, yaw, s_roll, s_pitch, s_yaw, valid,
             curvature_1_m=curvature, curvature_sigma_1_m=curvature_sigma,
-            vertical_curvature_1_m=zeta, vertical_curvature_sigma_1_m=zeta_sigma, lateral_offset_m=lateral,
+            vertical_curvature_1_m=zeta, vertical_curvature_sigma_1_m=zeta_sigma,
+            roll_lookahead_m=float(np.mean(x_rows)) - x_c, lateral_offset_m=lateral,
             line_spacing_m=spacing, line_offsets_m=offsets,
             camera_xyz_rad=(float(phi), float(theta), float(psi)), vp_px=(float(vp[0]), float(vp[1])),
             n_lines=n_lines, roll_equation="eq10" if use_eq10 else "eq8", edge_rms_px=rms_px,

@@ -58,6 +58,17 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def workers_arg(text: str) -> int:
+    """``--workers N``: a whole number of processes, at least 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of processes, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"needs at least 1 process, got {n}")
+    return n
+
+
 def _one_line(e: BaseException) -> str:
     text = str(e) if not isinstance(e, OSError) or not e.filename else f"{e.filename}: {e.strerror}"
     return " ".join(text.split()) or type(e).__name__

@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+from . import workers_arg
+
 __all__ = ["add_parser", "run"]
 
 
@@ -37,6 +39,8 @@ def add_parser(sub) -> None:
                    help="estimate the camera-to-CAN clock offset from the data and apply it")
     p.add_argument("--debug-video", type=Path, help="also write the vision debug video here")
     p.add_argument("--no-report", action="store_true", help="skip plots and HTML")
+    p.add_argument("--workers", type=workers_arg, default=None,
+                   help="processes for the vision (default: the cores available; 1 with --debug-video)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run)
@@ -72,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
     from imu import read_log
     from vision.options import options_from_table
-    from vision.video import estimate_video
+    from vision.video import default_workers, estimate_video
 
     from ..config import load_config
     from ..drive import check_overlap, read_frame_times, read_truth
@@ -131,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     vision, vstats = estimate_video(files.video, frames, cfg.camera, cfg.mount, cfg.road, vision_opts,
-                                    progress=progress, debug_video=args.debug_video)
+                                    progress=progress, debug_video=args.debug_video,
+                                    workers=args.workers or default_workers())
     timings["vision"] = time.perf_counter() - t0
     if vstats.get("frames_missing"):
         warnings.append(f"{files.video}: has {vstats['frames_read']} frames, frames.csv lists {len(frames)}; "

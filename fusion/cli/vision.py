@@ -7,6 +7,8 @@ import argparse
 import os
 from pathlib import Path
 
+from . import workers_arg
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
@@ -26,6 +28,8 @@ def add_parser(sub) -> None:
                    help="estimator (default: the config's [vision] method, else alrazouk)")
     p.add_argument("--preset", choices=("default", "paper", "damon2018"), default=None,
                    help="start from these options instead of the config's [vision] preset")
+    p.add_argument("--workers", type=workers_arg, default=None,
+                   help="processes for the vision (default: the cores available; 1 with --debug-video)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -34,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from vision.options import options_from_table
-    from vision.video import count_frames, estimate_video
+    from vision.video import count_frames, default_workers, estimate_video
 
     from ..config import load_config
     from ..drive import read_frame_times
@@ -49,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
             options_from_table({**table, "preset": "damon2018"}, str(args.config))
     frames = read_frame_times(args.frames, cfg.video, None if args.frames else count_frames(args.video))
     vision, stats = estimate_video(args.video, frames, cfg.camera, cfg.mount, cfg.road, options,
-                                   progress=not args.quiet, debug_video=args.debug_video)
+                                   progress=not args.quiet, debug_video=args.debug_video,
+                                    workers=args.workers or default_workers())
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_name(args.out.name + ".partial")
     vision.to_csv(tmp, index=False, float_format="%.6f")
@@ -57,6 +62,6 @@ def run(args: argparse.Namespace) -> int:
     n = len(vision)
     missing = f"; {stats['frames_missing']} listed frames not in the video" if stats["frames_missing"] else ""
     print(f"wrote {args.out}: {n} frames, {stats['valid']} valid ({100 * stats['valid'] / max(n, 1):.0f} %), "
-          f"median {stats['median_ms']:.1f} ms/frame ({options.method}){missing}"
+          f"median {stats['median_ms']:.1f} ms/frame ({options.method}, {stats['workers']} worker(s)){missing}"
           + (f"; debug video {args.debug_video}" if args.debug_video else ""))
     return 0
