@@ -156,6 +156,26 @@ class NoiseModel:
 
 
 @dataclass(frozen=True)
+class VisionMeasurement:
+    """One vision result, as the filter uses it (vision.csv's columns; vehicle relative to road).
+
+    ``roll_lookahead_m``: how far ahead of the vehicle the roll was measured (the bank there
+    is modelled, :meth:`AttitudeEKF.update_vision`); ``twist_m``: the pitch and yaw errors per
+    rad/m of road twist, ``(y_l + y_r, y_l y_r / H)`` in metres (:class:`vision.VisionEstimate`
+    ``pitch_per_twist_m``, ``yaw_per_twist_m``).
+    """
+
+    t_s: float
+    angles_rad: np.ndarray
+    sigmas_rad: np.ndarray
+    curvature_1_m: float = math.nan
+    curvature_sigma_1_m: float = math.nan
+    lateral_offset_m: float = math.nan
+    roll_lookahead_m: float = 0.0
+    twist_m: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
 class ImuStep:
     """Inputs of one propagation interval (vehicle frame)."""
 
@@ -442,30 +462,38 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.x_post, self.P_post = self.x, self.P
         return True
 
-    def update_vision(self, angles_rad, sigmas_rad, curvature_1_m: float = math.nan,
-                      curvature_sigma_1_m: float = math.nan, lookahead_m: float = 0.0) -> bool:
+    def update_vision(self, m: VisionMeasurement) -> bool:
         """Vision (roll, pitch, yaw) relative to the road, with the estimator's own 1-sigma, then
         the lane-fit curvature when there is one, gated on its own: a curvature outlier must not
         throw away good angles, nor good angles carry a bad curvature in. Returns whether the
         angles were used.
 
-        ``lookahead_m`` is where the vision measured the road: its roll comes from lane
-        cross-sections some metres ahead, and in a superelevation runoff the road there is
-        banked ``bank_rate * lookahead / v`` more than under the wheels (7 deg over 70 m at
-        10 m ahead: 1 deg). The measurement is modelled with the bank at that distance, which
-        turns the runoff from a vision error into information on the bank rate.
+        The road in view is not the road under the wheels. The roll comes from lane
+        cross-sections ``m.roll_lookahead_m`` ahead, and in a superelevation runoff the road
+        there is banked ``bank_rate * lookahead / v`` more (7 deg over 70 m at 10 m ahead:
+        1 deg); the runoff also twists the road (``tau = bank_rate / v``, rad/m), which the
+        estimator reads as pitch and yaw errors ``tau * m.twist_m`` (sample drive: 0.7 and
+        1.6 deg in the runoff). The measurement is modelled with both, which turns the runoff
+        from a vision error into information on the bank rate.
         """
         n = self.noise
-        sig = np.maximum(np.asarray(sigmas_rad, dtype=float) * n.vision_sigma_scale, n.vision_sigma_floor_rad)
+        curvature_1_m, curvature_sigma_1_m = m.curvature_1_m, m.curvature_sigma_1_m
+        sig = np.maximum(np.asarray(m.sigmas_rad, dtype=float) * n.vision_sigma_scale, n.vision_sigma_floor_rad)
         x_seen = self.x
-        tau = 0.0
-        if lookahead_m > 0.0 and self.x[S.SPEED] > 1.0:
-            tau = lookahead_m / self.x[S.SPEED]
+        v = self.x[S.SPEED]
+        lookahead = m.roll_lookahead_m if math.isfinite(m.roll_lookahead_m) and m.roll_lookahead_m > 0 else 0.0
+        if v > 1.0:
+            dt_ahead = lookahead / v
             x_seen = self.x.copy()
-            x_seen[S.BANK] += self.x[S.BANK_RATE] * tau
-        H = vision_jacobian(x_seen)
-        H[:, S.BANK_RATE] = H[:, S.BANK] * tau
-        ok = self.gated_update(np.asarray(angles_rad, dtype=float), H, vision_hx(x_seen),
+            x_seen[S.BANK] += self.x[S.BANK_RATE] * dt_ahead
+            H = vision_jacobian(x_seen)
+            H[:, S.BANK_RATE] = H[:, S.BANK] * dt_ahead
+            per_twist = np.array([0.0, m.twist_m[0], m.twist_m[1]]) / v      # rad per rad/s of bank rate
+            H[:, S.BANK_RATE] += per_twist
+            hx = vision_hx(x_seen) + per_twist * self.x[S.BANK_RATE]
+        else:
+            H, hx = vision_jacobian(x_seen), vision_hx(x_seen)
+        ok = self.gated_update(np.asarray(m.angles_rad, dtype=float), H, hx,
                                np.diag(sig**2), residual=_angle_residual)
         if math.isfinite(curvature_1_m):
             s_k = curvature_sigma_1_m if math.isfinite(curvature_sigma_1_m) else n.curvature_meas_1_m

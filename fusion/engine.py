@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .ekf import DIM_X, AttitudeEKF, ImuStep, NoiseModel, S, vision_hx, vision_jacobian
+from .ekf import DIM_X, AttitudeEKF, ImuStep, NoiseModel, S, VisionMeasurement, vision_hx, vision_jacobian
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 
@@ -113,7 +113,7 @@ class FusionStream:
         self.steps: list[StepRecord] = []
         self.start: tuple[np.ndarray, np.ndarray] | None = None   # posterior at the first sample
         self._hist: deque[_ImuSample] = deque()
-        self._pending: list[tuple] = []       # vision results waiting for the IMU to pass them
+        self._pending: list[VisionMeasurement] = []       # vision results waiting for the IMU to pass them
         self._n = 0
         self._initialized = False
         self._vision_initialized = False
@@ -139,9 +139,9 @@ class FusionStream:
         if self._hist and sample.t <= self._hist[-1].t:
             raise ValueError(f"IMU sample at {sample.t:.6f} s is not after the previous one")
         # Vision results whose time this sample passes are applied inside the interval.
-        ready = sorted((p for p in self._pending if p[0] <= sample.t), key=lambda p: p[0])
+        ready = sorted((p for p in self._pending if p.t_s <= sample.t), key=lambda p: p.t_s)
         if ready:
-            self._pending = [p for p in self._pending if p[0] > sample.t]
+            self._pending = [p for p in self._pending if p.t_s > sample.t]
         self._process_sample(sample, visions=ready)
         self._hist.append(sample)
         while self._hist and sample.t - self._hist[0].t > self.options.history_s:
@@ -149,8 +149,10 @@ class FusionStream:
 
     def add_vision(self, t_s: float, angles_rad, sigmas_rad, valid: bool = True,
                    curvature_1_m: float = math.nan, lateral_offset_m: float = math.nan,
-                   curvature_sigma_1_m: float = math.nan, lookahead_m: float = 0.0) -> None:
-        """A vision result: roll, pitch, yaw relative to the road at capture time ``t_s``."""
+                   curvature_sigma_1_m: float = math.nan, lookahead_m: float = 0.0,
+                   twist_m: tuple[float, float] = (0.0, 0.0)) -> None:
+        """A vision result: roll, pitch, yaw relative to the road at capture time ``t_s``
+        (the other arguments: :class:`fusion.ekf.VisionMeasurement`)."""
         if not self.options.use_vision:
             return
         angles = np.asarray(angles_rad, dtype=float)
@@ -158,13 +160,14 @@ class FusionStream:
         if not valid or not (np.all(np.isfinite(angles)) and np.all(np.isfinite(sig))):
             self.counts["vision_invalid"] += 1
             return
-        la = float(lookahead_m) if math.isfinite(lookahead_m) else 0.0
-        item = (float(t_s), angles, sig, float(curvature_1_m), float(lateral_offset_m), float(curvature_sigma_1_m), la)
-        if not self._hist or item[0] > self._hist[-1].t:
+        tw = tuple(float(g) if math.isfinite(g) else 0.0 for g in twist_m)
+        item = VisionMeasurement(float(t_s), angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
+                                 float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw)
+        if not self._hist or item.t_s > self._hist[-1].t:
             self._pending.append(item)   # the IMU has not reached it yet
         else:
             self.counts["vision_late"] += 1
-            self._apply_late(*item)
+            self._apply_late(item)
 
     # ---- core ----
 
@@ -187,12 +190,12 @@ class FusionStream:
         else:
             t0, g0 = prev.t, prev.gyro
             for v in visions:
-                if v[0] >= s.t:
+                if v.t_s >= s.t:
                     continue  # at the sample's own time: applied after its measurements below
-                g_v = prev.gyro + (s.gyro - prev.gyro) * (v[0] - prev.t) / (s.t - prev.t)
-                self._propagate(t0, v[0], (g0 + g_v) / 2, imu_index=-1)
-                self._vision_update(*v)
-                t0, g0 = v[0], g_v
+                g_v = prev.gyro + (s.gyro - prev.gyro) * (v.t_s - prev.t) / (s.t - prev.t)
+                self._propagate(t0, v.t_s, (g0 + g_v) / 2, imu_index=-1)
+                self._vision_update(v)
+                t0, g0 = v.t_s, g_v
             self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index)
             s.gyro_dot = (s.gyro - prev.gyro) / (s.t - prev.t)
         ekf = self.ekf
@@ -205,8 +208,8 @@ class FusionStream:
         # At the sample's own time (or before the very first sample): after its IMU
         # measurements, in the same order as a late result would be applied.
         for v in visions:
-            if prev is None or v[0] >= s.t:
-                self._vision_update(*v)
+            if prev is None or v.t_s >= s.t:
+                self._vision_update(v)
         s.x_post, s.P_post = ekf.x.copy(), ekf.P.copy()
         if self.record:
             if prev is None:
@@ -245,8 +248,9 @@ class FusionStream:
             self.counts["speed_rejected"] += 1
             self._speed_rejected_in_row += 1
 
-    def _vision_update(self, t, angles, sig, kappa, offset, kappa_sigma=math.nan, lookahead=0.0) -> None:
+    def _vision_update(self, m: VisionMeasurement) -> None:
         ekf = self.ekf
+        t, angles, kappa, offset = m.t_s, m.angles_rad, m.curvature_1_m, m.lateral_offset_m
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
             # First frame: take yaw, bank and grade from it so that the filter starts consistent.
@@ -256,7 +260,7 @@ class FusionStream:
             if math.isfinite(kappa):
                 ekf.x[S.CURVATURE] = kappa
             self._vision_initialized = True
-        if ekf.update_vision(angles, sig, kappa, kappa_sigma, lookahead):
+        if ekf.update_vision(m):
             self.counts["vision_used"] += 1
             self._last_vision_t = t
             self._rejected_in_row = 0
@@ -266,7 +270,7 @@ class FusionStream:
             if self._rejected_in_row >= self.options.reacquire_after_rejections:
                 self._reacquire(angles, kappa)
                 self.counts["vision_reacquired"] += 1
-                if ekf.update_vision(angles, sig, kappa, kappa_sigma, lookahead):
+                if ekf.update_vision(m):
                     self.counts["vision_used"] += 1
                     self._last_vision_t = t
                 self._rejected_in_row = 0
@@ -288,10 +292,10 @@ class FusionStream:
             ekf.P[:, i] = 0.0
             ekf.P[i, i] = sig**2
 
-    def _apply_late(self, t, angles, sig, kappa, offset, kappa_sigma=math.nan, lookahead=0.0) -> None:
+    def _apply_late(self, item: VisionMeasurement) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it
         and re-propagate the stored samples after it."""
-        hist = self._hist
+        hist, t = self._hist, item.t_s
         if not hist or t < hist[0].t:
             self.counts["vision_too_old"] += 1
             return
@@ -302,9 +306,8 @@ class FusionStream:
         if replay and self.record:
             raise ValueError("late vision result with record=True: feed inputs in time order")
         self.ekf.x, self.ekf.P = base.x_post.copy(), base.P_post.copy()
-        item = (t, angles, sig, kappa, offset, kappa_sigma, lookahead)
         if not replay:  # exactly at the newest sample's time
-            self._vision_update(*item)
+            self._vision_update(item)
             base.x_post, base.P_post = self.ekf.x.copy(), self.ekf.P.copy()
             return
         prev = base

@@ -3,8 +3,8 @@
 The tables are the ones the other packages produce: :func:`imu.read_log` (``t_s``,
 ``gyro_{x,y,z}_rad_s``, ``accel_{x,y,z}_m_s2``, ``speed_m_s``, ``fresh_*``; vehicle frame) and
 the vision estimator's ``vision.csv`` (``t_s``, ``roll_deg``, ``pitch_deg``, ``yaw_deg``,
-``valid``, ``*_sigma_deg``, ``curvature_1_m`` with ``curvature_sigma_1_m`` and ``roll_lookahead_m``
-when the estimator gives them, ``lateral_offset_m``). Both on the CAN log's
+``valid``, ``*_sigma_deg``, ``curvature_1_m`` with ``curvature_sigma_1_m``, ``roll_lookahead_m``,
+``pitch_per_twist_m`` and ``yaw_per_twist_m`` when the estimator gives them, ``lateral_offset_m``). Both on the CAN log's
 clock. The same :class:`fusion.engine.FusionStream` that the prototype embeds does the work,
 fed in time order; a second one without vision gives the IMU-only attitude, from which the
 plain bank of Damon et al. 2018 (IMU roll minus vision roll) is formed for comparison.
@@ -109,6 +109,9 @@ def vision_inputs(vision: pd.DataFrame) -> pd.DataFrame:
     for c in ("curvature_1_m", "lateral_offset_m", "curvature_sigma_1_m", "roll_lookahead_m"):
         if c not in v.columns:
             v[c] = np.nan
+    for c in ("pitch_per_twist_m", "yaw_per_twist_m"):
+        if c not in v.columns:
+            v[c] = 0.0
     return v
 
 
@@ -158,6 +161,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         vk = v["curvature_1_m"].to_numpy(dtype=float)
         vks = v["curvature_sigma_1_m"].to_numpy(dtype=float)
         vla = v["roll_lookahead_m"].to_numpy(dtype=float)
+        vtw = v[["pitch_per_twist_m", "yaw_per_twist_m"]].to_numpy(dtype=float)
         vd = v["lateral_offset_m"].to_numpy(dtype=float)
     else:
         vt = np.zeros(0)
@@ -166,7 +170,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     j = 0
     for k in tqdm(range(len(t)), desc="fuse", unit="sample", disable=not progress, mininterval=0.5):
         while j < len(vt) and vt[j] <= t[k]:
-            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j])
+            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j])
             j += 1
         stream.add_imu(t[k], gyro[k], accel[k], speed[k], bool(fresh[k]))
         X[k], Pm[k] = stream.ekf.x, stream.ekf.P

@@ -73,7 +73,8 @@ class LiveFusion:
         self.stream.add_vision(t_s + self.settings.camera_time_offset_s, est.rpy_rad,
                                (est.roll_sigma_rad, est.pitch_sigma_rad, est.yaw_sigma_rad), est.valid,
                                est.curvature_1_m, est.lateral_offset_m,
-                               getattr(est, "curvature_sigma_1_m", math.nan), getattr(est, "roll_lookahead_m", 0.0))
+                               est.curvature_sigma_1_m, est.roll_lookahead_m,
+                               (est.pitch_per_twist_m, est.yaw_per_twist_m))
 
     def estimate(self) -> Estimate:
         """The latest estimate (after the newest IMU sample), with 1-sigma."""

@@ -142,6 +142,8 @@ class VisionEstimate:
     vertical_curvature_1_m: float = math.nan
     vertical_curvature_sigma_1_m: float = math.nan
     roll_lookahead_m: float = math.nan
+    pitch_per_twist_m: float = 0.0
+    yaw_per_twist_m: float = 0.0
     lateral_offset_m: float = math.nan
     line_spacing_m: float = math.nan
     line_offsets_m: tuple[float, ...] = ()
@@ -732,6 +734,7 @@ class Estimator:
             curvature_1_m=curvature, curvature_sigma_1_m=curvature_sigma,
             vertical_curvature_1_m=zeta, vertical_curvature_sigma_1_m=zeta_sigma,
             roll_lookahead_m=float(np.mean(x_rows)) - x_c, lateral_offset_m=lateral,
+            pitch_per_twist_m=centres[0] + centres[1], yaw_per_twist_m=centres[0] * centres[1] / H,
             line_spacing_m=spacing, line_offsets_m=offsets,
             camera_xyz_rad=(float(phi), float(theta), float(psi)), vp_px=(float(vp[0]), float(vp[1])),
             n_lines=n_lines, roll_equation="eq10" if use_eq10 else "eq8", edge_rms_px=rms_px,
