@@ -46,6 +46,7 @@ _NOISE_KEYS = {
     "longitudinal_jerk_m_s3": ("accel_x_walk_m_s2_sqrt_s", float),
     "vision_sigma_scale": ("vision_sigma_scale", float),
     "vision_sigma_floor_deg": ("vision_sigma_floor_rad", math.radians),
+    "vision_road_model_error": ("vision_road_model_error", float),
     "gate_probability": ("gate_probability", float),
 }
 
