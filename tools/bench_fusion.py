@@ -10,6 +10,8 @@ runs the whole ``vifusion run`` as a user would (a subprocess, timed), then prin
 
 * RMSE against truth after 2 s of convergence: fused (forward filter and RTS smoother), vision
   alone, the plain bank of Damon et al. 2018 (IMU-only roll minus vision roll);
+* how the vision's errors follow the road's twist in superelevation runoffs, measured against
+  the model the estimator reports to the filter (``roll_lookahead_m``, ``*_per_twist_m``);
 * the share of samples whose NEES of (roll, pitch, yaw, bank) lies in its 95 % chi-square band;
 * lane loss: vision removed for 5 s, the worst roll error meanwhile and the time after the
   lanes return until the roll error is back within the drive's own RMSE band;
@@ -101,6 +103,36 @@ def lane_loss(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[float, float
     return float(np.nanmax(during)), float(recover)
 
 
+def road_in_view(drive: Path, run_dir: Path) -> dict:
+    """The vision's errors against truth regressed on the true road twist ``tau = bank_rate / v``
+    (rad/m), next to what the estimator says they are (median of its ``roll_lookahead_m``,
+    ``pitch_per_twist_m``, ``yaw_per_twist_m``): metres per rad/m; roll's sign is flipped (the
+    roll ahead is ``-tau L`` off). Also the RMSE of each error before and after removing the
+    model's prediction per frame."""
+    from fusion.metrics import interp_truth
+
+    v = pd.read_csv(run_dir / "vision.csv")
+    v = v[v["valid"] == 1]
+    truth = pd.read_csv(drive / "truth.csv")
+    t = v["t_s"].to_numpy()
+    dt = 0.01
+    tr = interp_truth(truth, t)
+    rate = (interp_truth(truth, t + dt)["bank_deg"] - interp_truth(truth, t - dt)["bank_deg"]).to_numpy() / (2 * dt)
+    tau = np.radians(rate) / tr["speed_m_s"].to_numpy()
+    out = {}
+    for angle, col, sign in (("roll", "roll_lookahead_m", -1.0), ("pitch", "pitch_per_twist_m", 1.0),
+                             ("yaw", "yaw_per_twist_m", 1.0)):
+        e = np.radians(v[f"{angle}_deg"].to_numpy() - tr[f"{angle}_deg"].to_numpy())
+        m = np.isfinite(e) & np.isfinite(tau)
+        A = np.stack([np.ones(m.sum()), tau[m]], axis=1)
+        slope = float(np.linalg.lstsq(A, e[m], rcond=None)[0][1]) * sign
+        gain = v[col].to_numpy()
+        left = e - sign * np.nan_to_num(gain) * tau
+        out[angle] = (slope, float(np.nanmedian(gain)), math.degrees(math.sqrt(np.mean(e[m] ** 2))),
+                      math.degrees(math.sqrt(np.mean(left[m] ** 2))))
+    return out
+
+
 def filter_rate(drive: Path) -> float:
     """IMU samples per second through the forward filter alone (median of 3)."""
     from fusion.config import load_config
@@ -133,6 +165,8 @@ def live_cost_us(drive: Path) -> float:
     ests = [(r.t_s, VisionEstimate(math.radians(r.roll_deg), math.radians(r.pitch_deg), math.radians(r.yaw_deg),
                                    math.radians(r.roll_sigma_deg), math.radians(r.pitch_sigma_deg),
                                    math.radians(r.yaw_sigma_deg), bool(r.valid), curvature_1_m=r.curvature_1_m,
+                                   curvature_sigma_1_m=r.curvature_sigma_1_m, roll_lookahead_m=r.roll_lookahead_m,
+                                   pitch_per_twist_m=r.pitch_per_twist_m, yaw_per_twist_m=r.yaw_per_twist_m,
                                    lateral_offset_m=r.lateral_offset_m))
             for r in vis.itertuples()]
     live = LiveFusion(cfg)
@@ -152,7 +186,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="only the 20 s drives")
     args = ap.parse_args(argv)
     names = QUICK if args.quick else DRIVES
-    rows, speed_rows = [], []
+    rows, speed_rows, view_rows = [], [], []
     for name in names:
         drive = cached_full_drive(name)
         out = drive.parent / (drive.name + "-run")
@@ -162,6 +196,7 @@ def main(argv=None) -> int:
         loss_max, recover = lane_loss(drive, out, t_loss_s=8.0)
         rows.append((name, acc, summ_s["rmse_deg"]["fused"], summ["consistency"]["fraction_inside"],
                      summ_s["consistency"]["fraction_inside"], loss_max, recover))
+        view_rows.append((name, road_in_view(drive, out)))
         dur = summ["duration_s"]
         tm = summ["timings_s"]
         # fixed: the whole command minus the per-drive stages (interpreter, imports, report)
@@ -182,6 +217,13 @@ def main(argv=None) -> int:
     print(f"{'drive':<26} {'NEES in 95% band fwd':>22} {'smoothed':>10} {'lane loss: max roll err':>24} {'recovery':>10}")
     for name, _, _, nees_f, nees_s, loss_max, recover in rows:
         print(f"{name:<26} {100 * nees_f:21.1f}% {100 * nees_s:9.1f}% {loss_max:21.2f} deg {recover:8.2f} s")
+    print()
+    print("Road in view: vision error per rad/m of road twist (regression on truth) vs the estimator's model [m];")
+    print("RMSE of the vision error before and after subtracting the model per frame [deg]")
+    print(f"{'drive':<26} {'angle':<6} {'measured':>9} {'model':>9} {'RMSE':>7} {'after':>7}")
+    for name, view in view_rows:
+        for angle, (slope, model, before, after) in view.items():
+            print(f"{name:<26} {angle:<6} {slope:9.2f} {model:9.2f} {before:7.3f} {after:7.3f}")
     print()
     print(f"{'drive':<26} {'duration':>9} {'vifusion run':>13} {'fixed':>7} {'rest / duration':>16} "
           f"{'filter alone':>16} {'LiveFusion':>14}")
