@@ -72,8 +72,10 @@ def kitti():
 
 
 def test_kitti_runs_and_finds_lanes(kitti):
-    """Ten real frames: lanes or a reason, no exception; lanes on some frames (3 of 10 pass the
-    plausibility checks today; the others see one line, or a curb and a line too close)."""
+    """Ten real frames: lanes or a reason, no exception; lanes on some frames (4 of 10 pass the
+    plausibility checks today: 1, 2, 3, 25). No painted line bounds the lane on the right (a
+    kerb, then tram tracks), so on all four the right "line" is the kerb (2, 3, 25) or a rail
+    (1, 4.8 m right); the others see one line, a line 26 cm wide, lines too close, or fail."""
     assert len(kitti) == 10
     assert all(r[1] or r[2] for r in kitti)
     assert sum(r[1] for r in kitti) >= 2
@@ -81,16 +83,42 @@ def test_kitti_runs_and_finds_lanes(kitti):
 
 def test_kitti_pitch_agrees_with_oxts(kitti):
     """Pitch relative to the road against OXTS pitch relative to level: within 2 deg (the road's
-    grade accounts for the difference; over these frames it is within 0.25 deg)."""
+    grade accounts for part of the difference; over these frames it is within 0.3 deg on 1, 2
+    and 25, 0.94 deg on frame 3). The lane direction needs only parallel lines: a kerb serves."""
     for i, valid, roll, pitch, oxts_roll, oxts_pitch in kitti:
         if valid:
             assert abs(pitch - oxts_pitch) < 2.0, (i, pitch, oxts_pitch)
 
 
+# Roll, measured on the ten frames (2011_09_26_drive_0001, Karlsruhe, city; see the images):
+# * The ego lane has ONE painted line, the dashed lane line on its left (Leitlinie, RMS narrow
+#   line 0.12 m). On its right there is no marking: a concrete kerb, then the tram tracks. The
+#   second marking is the solid line 3.1 to 3.5 m further left (centre to centre, BEV at the OXTS
+#   pose), bounding the parking strip: in town RMS allows a broad line there (0.25 m), and the
+#   estimator's area widths make it 22 to 29 cm on 9 of 10 frames (frame 25, in shadow: 14 cm).
+# * Default options (the fixture): the pair is the dashed line with the kerb or a rail, neither
+#   a flat marking of any width, so eq. (8) has no true width ratio to use. Roll minus OXTS roll:
+#   frame 1 -2.3, 2 +7.8, 3 -1.1, 25 -4.5 deg.
+# * The rule widths on the two painted lines (RoadMarkings(3.25, 0.12, False, marker_widths_m=
+#   (0.25, 0.12, 0.12)), BEV limited to y in [-0.6, 8] m so the kerb is out of view; lane width
+#   3.25 m, RASt 06, the BEV's 3.1 to 3.5 m agreeing): with the default re-warps no frame is valid
+#   (the solve moves the roll by 3 to 10 deg and a line is lost in the BEV warped there); with one
+#   warp (rewarp_deg=inf) 8 frames are valid and roll minus OXTS roll is frame
+#   0 +1.7, 1 +4.9, 2 +4.2, 3 +4.0, 25 +10.7, 45 +5.7, 65 +2.6, 85 +3.2 deg (line spacing then
+#   3.6 to 7.8 m: the roll that balances the rule widths is not the road's).
+# * Why: on this pair (1.2 m and 4.5 m left, camera 1.65 m up) the width ratio changes by about
+#   7 % per degree of roll, so 2 deg needs the ratio to 14 %. At the OXTS pose (no bank) the
+#   measured ratio dashed/solid is 0.57 to 0.66 with the default area edges, 0.66 to 0.91 with
+#   half-level ("subpixel") edges and 1.2 to 1.6 with binary edges (frame 25 left out: 1.05, 1.14,
+#   1.22), against the rule's 0.48: the paint here is not at the nominal widths, or the edges do
+#   not measure them, to 14 %.
+# * OXTS roll is relative to gravity, the estimate relative to the road surface: a 2.5 % crossfall
+#   (RASt 06 minimum) is 1.4 deg of the 2 deg allowed, and it is not known here.
 @pytest.mark.xfail(strict=True, reason=(
-    "eq. (8) needs the two markers' widths equal or known to a few mm; on this road the lines "
-    "found differ (the solid line measures about 24 cm, the dashed one 14 cm) and the curb on the "
-    "right can pass for a line: roll is off by 5 to 13 deg on the frames that pass the checks"))
+    "eq. (8) needs the two markers' widths known to about 14 % on this road; the ego lane has one "
+    "painted line (the kerb or a rail is taken as the other: roll off by -4.5 to +7.8 deg), and "
+    "with the RMS widths (broad 0.25 m solid, narrow 0.12 m dashed) on the two painted lines the "
+    "measured width ratio is 0.57 to 0.66, not 0.48: roll off by +1.7 to +10.7 deg (see above)"))
 def test_kitti_roll_agrees_with_oxts(kitti):
     for i, valid, roll, pitch, oxts_roll, oxts_pitch in kitti:
         if valid:
