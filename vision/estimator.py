@@ -652,10 +652,11 @@ class Estimator:
                 shape_deg = model.c.size + 1       # the degree chosen in the first pass is kept
                 dmodel = model if o.vp == "tangent" else self._model(edges, R, H, 1, bev.grid, zeta=sag, x0=x0,
                                                                                   zeta_prior=zeta0)
-                if use_sag and model.dzeta != 0.0:
+                if use_sag and model.dzeta != 0.0 and step > _ZETA_POSE_STEP_RAD:
                     # Far from the pose, a pitch error bends the projected lines in ways the
                     # polynomials do not follow (a 1/x term), which zeta would take up: where
-                    # the step with zeta held is large, zeta stays where it is.
+                    # the step with zeta held is large, zeta stays where it is. (After a step
+                    # under that size the pose is near: the check is skipped, 0.7 ms a frame.)
                     held = model.with_dzeta_prior(0.0, 1e-9)
                     dheld = held if o.vp == "tangent" else dmodel.with_dzeta_prior(0.0, 1e-9)
                     upd = self._pose_update(held, dheld, R, H, x0, zeta, use_eq10, ratio)
