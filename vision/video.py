@@ -74,22 +74,8 @@ class FrameSource:
         return max(n, 0)
 
     def __iter__(self) -> Iterator[np.ndarray]:
-        if self.files is not None:
-            for f in self.files:
-                img = cv2.imread(str(f), cv2.IMREAD_COLOR)
-                if img is None:
-                    raise VisionError(f"{f}: not a readable picture")
-                yield img
-            return
-        cap = cv2.VideoCapture(str(self.path))
-        try:
-            while True:
-                ok, img = cap.read()
-                if not ok:
-                    break
-                yield img
-        finally:
-            cap.release()
+        for _, img in _frames_from(self, 0):
+            yield img
 
 
 def count_frames(path: str | os.PathLike) -> int:
