@@ -192,48 +192,57 @@ class ImuStep:
 _VISION_STATES = (S.ROLL_W, S.PITCH_W, S.YAW_REL, S.BANK, S.GRADE)
 
 
+@nb.njit(cache=True)
 def relative_attitude(x) -> np.ndarray:
-    """``R_o_from_v`` of state ``x``: ``(Ry(grade) Rx(bank))^T Rz(yaw_rel) Ry(pitch_w) Rx(roll_w)``."""
-    R_gp_from_v = R_from_rpy_scalar(x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL])
-    R_gp_from_o = R_from_rpy_scalar(x[S.BANK], x[S.GRADE], 0.0)
+    """``R_o_from_v`` of state ``x``: ``(Ry(grade) Rx(bank))^T Rz(yaw_rel) Ry(pitch_w) Rx(roll_w)``
+    (state indices 0-4 of :class:`S`)."""
+    R_gp_from_v = R_from_rpy_scalar(x[0], x[1], x[2])
+    R_gp_from_o = R_from_rpy_scalar(x[3], x[4], 0.0)
     return R_gp_from_o.T @ R_gp_from_v
 
 
+@nb.njit(cache=True)
 def vision_hx(x) -> np.ndarray:
     """Predicted vision measurement: (roll, pitch, yaw) relative to the road, rad."""
-    return np.array(rpy_from_R_scalar(relative_attitude(x)))
+    h = np.empty(3)
+    h[0], h[1], h[2] = rpy_from_R_scalar(relative_attitude(x))
+    return h
 
 
+@nb.njit(cache=True)
 def _skew(a, b, c):
-    return np.array([[0.0, -c, b], [c, 0.0, -a], [-b, a, 0.0]])
+    K = np.zeros((3, 3))
+    K[0, 1], K[0, 2], K[1, 2] = -c, b, -a
+    K[1, 0], K[2, 0], K[2, 1] = c, -b, a
+    return K
 
 
-_EX, _EY, _EZ = _skew(1.0, 0.0, 0.0), _skew(0.0, 1.0, 0.0), _skew(0.0, 0.0, 1.0)
-
-
+@nb.njit(cache=True)
 def vision_jacobian(x) -> np.ndarray:
     """3 x DIM_X Jacobian of :func:`vision_hx`, analytic.
 
     With ``A = Ry(grade) Rx(bank)``, ``B = Rz(yaw_rel) Ry(pitch_w) Rx(roll_w)`` and
     ``R = A^T B``: ``dB/droll = B [x]``, ``dB/dyaw = [z] B``, ``dB/dpitch = [Rz(yaw) y] B``,
     ``dA/dbank = A [x]``, ``dA/dgrade = [y] A``; then the derivatives of
-    ``(atan2(R21, R22), -asin(R20), atan2(R10, R00))``.
+    ``(atan2(R21, R22), -asin(R20), atan2(R10, R00))``. (Compiled: state indices as numbers,
+    0-4 = roll_w, pitch_w, yaw_rel, bank, grade as in :class:`S`.)
     """
-    A = R_from_rpy_scalar(x[S.BANK], x[S.GRADE], 0.0)
-    B = R_from_rpy_scalar(x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL])
+    A = R_from_rpy_scalar(x[3], x[4], 0.0)
+    B = R_from_rpy_scalar(x[0], x[1], x[2])
     R = A.T @ B
-    cy, sy = math.cos(x[S.YAW_REL]), math.sin(x[S.YAW_REL])
-    dR = (
-        A.T @ (B @ _EX),                      # roll_w
-        A.T @ (_skew(-sy, cy, 0.0) @ B),      # pitch_w
-        A.T @ (_EZ @ B),                      # yaw_rel
-        -(_EX @ R),                           # bank:  (A [x])^T B = -[x] A^T B
-        -(A.T @ _EY @ B),                     # grade: ([y] A)^T B = -A^T [y] B
-    )
+    cy, sy = math.cos(x[2]), math.sin(x[2])
+    ex, ey, ez = _skew(1.0, 0.0, 0.0), _skew(0.0, 1.0, 0.0), _skew(0.0, 0.0, 1.0)
+    dR = np.empty((5, 3, 3))              # in the order of _VISION_STATES
+    dR[0] = A.T @ (B @ ex)                # roll_w
+    dR[1] = A.T @ (_skew(-sy, cy, 0.0) @ B)   # pitch_w
+    dR[2] = A.T @ (ez @ B)                # yaw_rel
+    dR[3] = -(ex @ R)                     # bank:  (A [x])^T B = -[x] A^T B
+    dR[4] = -(A.T @ ey @ B)               # grade: ([y] A)^T B = -A^T [y] B
     r21, r22, r20, r10, r00 = R[2, 1], R[2, 2], R[2, 0], R[1, 0], R[0, 0]
     n_roll, n_pitch, n_yaw = r21 * r21 + r22 * r22, math.sqrt(max(1e-300, 1.0 - r20 * r20)), r10 * r10 + r00 * r00
     H = np.zeros((3, DIM_X))
-    for i, d in zip(_VISION_STATES, dR):
+    for k in range(5):
+        i, d = _VISION_STATES[k], dR[k]
         H[0, i] = (r22 * d[2, 1] - r21 * d[2, 2]) / n_roll
         H[1, i] = -d[2, 0] / n_pitch
         H[2, i] = (r00 * d[1, 0] - r10 * d[0, 0]) / n_yaw
@@ -249,19 +258,6 @@ def vision_jacobian_numeric(x, eps: float = 1e-6) -> np.ndarray:
         xm[i] -= eps
         H[:, i] = wrap_angle(vision_hx(xp) - vision_hx(xm)) / (2 * eps)
     return H
-
-
-def _inv_small(M: np.ndarray) -> np.ndarray:
-    """Inverse of a 1x1 or symmetric 3x3 matrix by cofactors (numpy's inv costs more here)."""
-    if M.shape[0] == 1:
-        return np.array([[1.0 / M[0, 0]]])
-    if M.shape[0] != 3:
-        return np.linalg.inv(M)
-    a, b, c, d, e, f = M[0, 0], M[0, 1], M[0, 2], M[1, 1], M[1, 2], M[2, 2]
-    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
-    det = a * A + b * B + c * C
-    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
-    return np.array([[A, B, C], [B, D, E], [C, E, F]]) / det
 
 
 def _angle_residual(a, b):
@@ -318,101 +314,34 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self._gate = {k: float(chi2.ppf(noise.gate_probability, k)) for k in (1, 2, 3, 4)}
         self._R_accel = np.diag(np.asarray(noise.accel_meas_m_s2, dtype=float) ** 2)
         self.curvature_rejected = 0
-        R_, P_, Y_ = S.ROLL_W, S.PITCH_W, S.YAW_REL
-        BX, BY, BZ = S.GYRO_BIAS_X, S.GYRO_BIAS_Y, S.GYRO_BIAS_Z
-        cells = [(R_, R_), (R_, P_), (R_, BX), (R_, BY), (R_, BZ), (P_, R_), (P_, BY), (P_, BZ),
-                 (Y_, R_), (Y_, P_), (Y_, BY), (Y_, BZ), (Y_, Y_), (Y_, S.SPEED), (Y_, S.CURVATURE),
-                 (S.SPEED, S.ACCEL_X), (S.BANK, S.BANK_RATE), (S.BANK_RATE, S.BANK_RATE)]
-        self._F_idx = np.array([i * DIM_X + j for i, j in cells])
 
     # ---- body rates ----
-
-    def body_rates(self, gyro_rad_s, x=None) -> np.ndarray:
-        """Bias-corrected rates (p, q, r); q reconstructed when there is no pitch-rate gyro."""
-        x = self.x if x is None else x
-        w = np.asarray(gyro_rad_s, dtype=float) - x[S.GYRO_BIAS]
-        if not self.has_pitch_rate:
-            w[1] = w[2] * math.tan(x[S.ROLL_W])
-        return w
 
     # ---- process ----
 
     def predict_x(self, u: ImuStep = None) -> None:
         """Propagate the state over one IMU interval (module docstring, "Process")."""
-        x, dt = self.x.copy(), u.dt_s
-        p, q, r = self.body_rates(u.gyro_rad_s, x)
-        R = R_from_rpy_scalar(x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL]) @ so3_exp_scalar(p * dt, q * dt, r * dt)
-        roll, pitch, yaw = rpy_from_R_scalar(R)
-        x[S.ROLL_W], x[S.PITCH_W] = roll, pitch
-        if not u.follow_road:
-            x[S.YAW_REL] = yaw - self._road_turn_rate(x, u) * dt
-        x[S.BANK] += x[S.BANK_RATE] * dt
-        x[S.BANK_RATE] *= math.exp(-dt / self.noise.bank_rate_tau_s)
-        x[S.SPEED] += x[S.ACCEL_X] * dt
-        self.x = x
+        self.x = _predict_x(self.x, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m,
+                            self.has_pitch_rate, self.noise.bank_rate_tau_s)
 
     def road_turn_rate(self, u: ImuStep) -> float:
         """Heading rate of the road at the vehicle, rad/s: ``kappa v cos(yaw_rel) / (1 - kappa d)``,
         or the vehicle's own heading rate when there is no lane fit (``follow_road``)."""
-        if u.follow_road:
-            p, q, r = self.body_rates(u.gyro_rad_s)
-            sf, cf = math.sin(self.x[S.ROLL_W]), math.cos(self.x[S.ROLL_W])
-            return (q * sf + r * cf) / math.cos(self.x[S.PITCH_W])
-        return self._road_turn_rate(self.x, u)
-
-    @staticmethod
-    def _road_turn_rate(x, u: ImuStep) -> float:
-        k = x[S.CURVATURE]
-        return k * x[S.SPEED] * math.cos(x[S.YAW_REL]) / max(1.0 - k * u.lateral_offset_m, 0.2)
+        return _road_turn_rate(self.x, u.gyro_rad_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate)
 
     def transition(self, u: ImuStep):
-        """Jacobian ``F = I + A dt`` and process noise ``Q`` of one interval.
+        """Jacobian ``F = I + A dt`` and process noise ``Q`` of one interval (:func:`_transition`)."""
+        n = self.noise
+        return _transition(self.x, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
+                           n.bank_rate_tau_s, self._q_per_s, n.gyro_noise_rad_s**2,
+                           n.yaw_rel_walk_no_lanes_rad_sqrt_s**2)
 
-        ``A`` is the derivative of the ZYX Euler-rate equations ``roll' = p + tan(th) (q sin(ph)
-        + r cos(ph))``, ``pitch' = q cos(ph) - r sin(ph)``, ``yaw' = (q sin(ph) + r cos(ph)) /
-        cos(th) - road_turn_rate`` with ``(p, q, r) = gyro - bias``; built with one array
-        assignment per matrix because this runs for every IMU sample.
-        """
-        x, dt = self.x, u.dt_s
-        phi, theta, psi = x[S.ROLL_W], x[S.PITCH_W], x[S.YAW_REL]
-        sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
-        tt = st / ct
-        p, q, r = self.body_rates(u.gyro_rad_s, x)
-        if self.has_pitch_rate:
-            qs_rc = q * sf + r * cf
-            vals = [1.0 + tt * (q * cf - r * sf) * dt, qs_rc / ct**2 * dt, -dt, -tt * sf * dt, -tt * cf * dt,
-                    (-q * sf - r * cf) * dt, -cf * dt, sf * dt,
-                    (q * cf - r * sf) / ct * dt, qs_rc * st / ct**2 * dt, -sf / ct * dt, -cf / ct * dt]
-            e = (1.0, sf * tt, cf * tt, 0.0, cf, -sf, 0.0, sf / ct, cf / ct)
-        else:  # q = r tan(phi): pitch rate 0, roll and yaw from p and r only
-            vals = [1.0 + tt * r * sf / cf**2 * dt, r / (cf * ct**2) * dt, -dt, 0.0, -tt / cf * dt,
-                    0.0, 0.0, 0.0,
-                    r * sf / (cf**2 * ct) * dt, r * st / (cf * ct**2) * dt, 0.0, -dt / (cf * ct)]
-            e = (1.0, 0.0, tt / cf, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0 / (cf * ct))
-        follow = u.follow_road
-        if follow:  # road turns with the vehicle: yaw relative to the road is held
-            vals[8:12] = [0.0, 0.0, 0.0, 0.0]
-            vals += [1.0, 0.0, 0.0]
-            e = e[:6] + (0.0, 0.0, 0.0)
-        else:
-            k = x[S.CURVATURE]
-            scale = 1.0 / max(1.0 - k * u.lateral_offset_m, 0.2)
-            vals += [1.0 + k * x[S.SPEED] * math.sin(psi) * scale * dt, -k * math.cos(psi) * scale * dt,
-                     -x[S.SPEED] * math.cos(psi) * scale**2 * dt]  # d(k / (1 - k d))/dk = scale^2
-        vals += [dt, dt, math.exp(-dt / self.noise.bank_rate_tau_s)]
-        F = self._I.copy()
-        F.flat[self._F_idx] = vals
-        E = np.array(e).reshape(3, 3)
-        Q = np.diag(self._q_per_s * dt)
-        Q[:3, :3] += (E @ E.T) * (self.noise.gyro_noise_rad_s * dt) ** 2
-        if follow:
-            Q[S.YAW_REL, S.YAW_REL] += self.noise.yaw_rel_walk_no_lanes_rad_sqrt_s**2 * dt
-        # integrated random walks: the integral's own share
-        Q[S.SPEED, S.SPEED] += self._q_per_s[S.ACCEL_X] * dt**3 / 3.0
-        Q[S.SPEED, S.ACCEL_X] = Q[S.ACCEL_X, S.SPEED] = self._q_per_s[S.ACCEL_X] * dt**2 / 2.0
-        Q[S.BANK, S.BANK] += self._q_per_s[S.BANK_RATE] * dt**3 / 3.0
-        Q[S.BANK, S.BANK_RATE] = Q[S.BANK_RATE, S.BANK] = self._q_per_s[S.BANK_RATE] * dt**2 / 2.0
-        return F, Q
+    def predict(self, u: ImuStep = None) -> None:
+        """filterpy's ``predict`` (``predict_x``, then ``P = F P F^T + Q``, then the priors),
+        with the covariance product compiled."""
+        self.predict_x(u)
+        self.P = _propagate_cov(self.P, self.F, self.Q)
+        self.x_prior, self.P_prior = self.x.copy(), self.P.copy()
 
     def propagate(self, u: ImuStep) -> None:
         """filterpy predict with this interval's F and Q."""
@@ -432,17 +361,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
         gain, and half the matrix products), symmetrised.
         """
         y = residual(z, hx)
-        PHT = self.P @ H.T
-        Sm = H @ PHT + R
-        SI = _inv_small(Sm)
-        d2 = float(y @ SI @ y)
+        ok, d2, x, P, K, Sm, SI = _gated_update(self.x, self.P, y, H, R, self._gate[len(y)])
         self.last_d2 = d2
-        if d2 > self._gate[len(y)]:
+        if not ok:
             return False
-        K = PHT @ SI
-        self.x = self.x + K @ y
-        P = self.P - K @ PHT.T
-        self.P = (P + P.T) * 0.5
+        self.x, self.P = x, P
         self.y, self.S, self.SI, self.K, self.z = y, Sm, SI, K, z
         self._log_likelihood = self._likelihood = self._mahalanobis = None
         self.x_post, self.P_post = self.x, self.P
@@ -458,9 +381,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.last_d2 = d2
         if d2 > self._gate[1]:
             return False
-        K = P[:, i] / Sm
-        self.x = self.x + K * y
-        self.P = P - np.outer(K, P[i, :])
+        self.x, self.P, K = _update_state(self.x, P, i, y, Sm)
         self.y, self.S, self.SI, self.K, self.z = np.array([y]), np.array([[Sm]]), np.array([[1.0 / Sm]]), K[:, None], z
         self._log_likelihood = self._likelihood = self._mahalanobis = None
         self.x_post, self.P_post = self.x, self.P
@@ -531,16 +452,6 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
 
 @nb.njit(cache=True)
-def _rpy_matrix(roll, pitch, yaw):
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-    R = np.empty((3, 3))
-    R[0, 0], R[0, 1], R[0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
-    R[1, 0], R[1, 1], R[1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
-    R[2, 0], R[2, 1], R[2, 2] = -sp, cp * sr, cp * cr
-    return R
-
-
-@nb.njit(cache=True)
 def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     """Specific-force model and Jacobian; see :meth:`AttitudeEKF.specific_force_model`."""
     g = GRAVITY_M_S2
@@ -550,8 +461,8 @@ def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     if not has_q:
         q = r * math.tan(phi)
     # attitude relative to the road and the road frame's rotation, in o
-    A = _rpy_matrix(x[3], x[4], 0.0)          # R_g'_from_o
-    R = A.T @ _rpy_matrix(phi, theta, x[2])   # R_o_from_v
+    A = R_from_rpy_scalar(x[3], x[4], 0.0)          # R_g'_from_o
+    R = A.T @ R_from_rpy_scalar(phi, theta, x[2])   # R_o_from_v
     phi_o = math.atan2(R[2, 1], R[2, 2])
     theta_o = -math.asin(max(-1.0, min(1.0, R[2, 0])))
     wo0, wo1, wo2 = road_rate * A[2, 0] + x[10], road_rate * A[2, 1], road_rate * A[2, 2]
@@ -606,3 +517,152 @@ def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
             H[i, 7] = -v * (J[i, 2] + J[i, 1] * sf / cf)
             H[i, 0] += v * J[i, 1] * r / (cf * cf)
     return f, H
+
+
+# ---- compiled kernels: they run for every IMU sample ----
+# State indices as in S: 0 roll_w, 1 pitch_w, 2 yaw_rel, 3 bank, 4 grade, 5-7 gyro bias,
+# 8 speed, 9 accel_x, 10 bank_rate, 11-13 accel bias, 14 curvature.
+
+
+@nb.njit(cache=True)
+def _body_rates(x, gyro, has_q):
+    """Bias-corrected (p, q, r); ``q = r tan(roll_w)`` without a pitch-rate gyro."""
+    p, q, r = gyro[0] - x[5], gyro[1] - x[6], gyro[2] - x[7]
+    if not has_q:
+        q = r * math.tan(x[0])
+    return p, q, r
+
+
+@nb.njit(cache=True)
+def _road_turn_rate(x, gyro, follow, offset, has_q):
+    """:meth:`AttitudeEKF.road_turn_rate`."""
+    if follow:
+        p, q, r = _body_rates(x, gyro, has_q)
+        return (q * math.sin(x[0]) + r * math.cos(x[0])) / math.cos(x[1])
+    k = x[14]
+    return k * x[8] * math.cos(x[2]) / max(1.0 - k * offset, 0.2)
+
+
+@nb.njit(cache=True)
+def _predict_x(x0, gyro, dt, follow, offset, has_q, tau):
+    """Process model of the module docstring over one interval ``dt``."""
+    x = x0.copy()
+    p, q, r = _body_rates(x, gyro, has_q)
+    R = R_from_rpy_scalar(x[0], x[1], x[2]) @ so3_exp_scalar(p * dt, q * dt, r * dt)
+    roll, pitch, yaw = rpy_from_R_scalar(R)
+    x[0], x[1] = roll, pitch
+    if not follow:
+        x[2] = yaw - _road_turn_rate(x, gyro, False, offset, has_q) * dt
+    x[3] += x[10] * dt
+    x[10] *= math.exp(-dt / tau)
+    x[8] += x[9] * dt
+    return x
+
+
+@nb.njit(cache=True)
+def _transition(x, gyro, dt, follow, offset, has_q, tau, q_per_s, gyro_var, yaw_walk_var):
+    """Jacobian ``F = I + A dt`` and process noise ``Q`` of one interval.
+
+    ``A`` is the derivative of the ZYX Euler-rate equations ``roll' = p + tan(th) (q sin(ph)
+    + r cos(ph))``, ``pitch' = q cos(ph) - r sin(ph)``, ``yaw' = (q sin(ph) + r cos(ph)) /
+    cos(th) - road_turn_rate`` with ``(p, q, r) = gyro - bias``; ``Q``: the gyro noise through
+    the same equations (``E``), the random walks per second times ``dt``, and the integrated
+    walks' own share (speed from acceleration, bank from bank rate).
+    """
+    phi, theta, psi = x[0], x[1], x[2]
+    sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
+    tt = st / ct
+    p, q, r = _body_rates(x, gyro, has_q)
+    F = np.eye(15)
+    E = np.zeros((3, 3))
+    if has_q:
+        qs_rc = q * sf + r * cf
+        F[0, 0], F[0, 1], F[0, 5], F[0, 6], F[0, 7] = 1.0 + tt * (q * cf - r * sf) * dt, qs_rc / ct**2 * dt, -dt, -tt * sf * dt, -tt * cf * dt
+        F[1, 0], F[1, 6], F[1, 7] = (-q * sf - r * cf) * dt, -cf * dt, sf * dt
+        F[2, 0], F[2, 1], F[2, 6], F[2, 7] = (q * cf - r * sf) / ct * dt, qs_rc * st / ct**2 * dt, -sf / ct * dt, -cf / ct * dt
+        E[0, 0], E[0, 1], E[0, 2] = 1.0, sf * tt, cf * tt
+        E[1, 1], E[1, 2] = cf, -sf
+        E[2, 1], E[2, 2] = sf / ct, cf / ct
+    else:  # q = r tan(phi): pitch rate 0, roll and yaw from p and r only
+        F[0, 0], F[0, 1], F[0, 5], F[0, 7] = 1.0 + tt * r * sf / cf**2 * dt, r / (cf * ct**2) * dt, -dt, -tt / cf * dt
+        F[2, 0], F[2, 1], F[2, 7] = r * sf / (cf**2 * ct) * dt, r * st / (cf * ct**2) * dt, -dt / (cf * ct)
+        E[0, 0], E[0, 2] = 1.0, tt / cf
+        E[2, 2] = 1.0 / (cf * ct)
+    if follow:  # road turns with the vehicle: yaw relative to the road is held
+        F[2, 0] = F[2, 1] = F[2, 6] = F[2, 7] = 0.0
+        E[2, 0] = E[2, 1] = E[2, 2] = 0.0
+    else:
+        k = x[14]
+        scale = 1.0 / max(1.0 - k * offset, 0.2)
+        F[2, 2] = 1.0 + k * x[8] * math.sin(psi) * scale * dt
+        F[2, 8] = -k * math.cos(psi) * scale * dt
+        F[2, 14] = -x[8] * math.cos(psi) * scale**2 * dt   # d(k / (1 - k d))/dk = scale^2
+    F[8, 9] = dt
+    F[3, 10] = dt
+    F[10, 10] = math.exp(-dt / tau)
+    Q = np.zeros((15, 15))
+    for i in range(15):
+        Q[i, i] = q_per_s[i] * dt
+    g2 = gyro_var * dt * dt
+    for i in range(3):
+        for j in range(3):
+            Q[i, j] += (E[i, 0] * E[j, 0] + E[i, 1] * E[j, 1] + E[i, 2] * E[j, 2]) * g2
+    if follow:
+        Q[2, 2] += yaw_walk_var * dt
+    Q[8, 8] += q_per_s[9] * dt**3 / 3.0
+    Q[8, 9] = Q[9, 8] = q_per_s[9] * dt**2 / 2.0
+    Q[3, 3] += q_per_s[10] * dt**3 / 3.0
+    Q[3, 10] = Q[10, 3] = q_per_s[10] * dt**2 / 2.0
+    return F, Q
+
+
+@nb.njit(cache=True)
+def _propagate_cov(P, F, Q):
+    """``F P F^T + Q``, symmetrised."""
+    P1 = F @ P @ F.T + Q
+    return (P1 + P1.T) * 0.5
+
+
+@nb.njit(cache=True)
+def _inv_small(M):
+    """Inverse of a 1x1 or symmetric 3x3 matrix by cofactors, else LAPACK."""
+    n = M.shape[0]
+    if n == 1:
+        out = np.empty((1, 1))
+        out[0, 0] = 1.0 / M[0, 0]
+        return out
+    if n != 3:
+        return np.ascontiguousarray(np.linalg.inv(M))
+    a, b, c, d, e, f = M[0, 0], M[0, 1], M[0, 2], M[1, 1], M[1, 2], M[2, 2]
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    det = a * A + b * B + c * C
+    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
+    out = np.empty((3, 3))
+    out[0, 0], out[0, 1], out[0, 2] = A / det, B / det, C / det
+    out[1, 0], out[1, 1], out[1, 2] = B / det, D / det, E / det
+    out[2, 0], out[2, 1], out[2, 2] = C / det, E / det, F / det
+    return out
+
+
+@nb.njit(cache=True)
+def _gated_update(x, P, y, H, R, gate):
+    """Chi-square gate and EKF update (:meth:`AttitudeEKF.gated_update`): returns
+    ``(accepted, d2, x, P, K, S, S^-1)``; ``x`` and ``P`` unchanged when rejected."""
+    PHT = P @ H.T
+    Sm = H @ PHT + R
+    SI = _inv_small(Sm)
+    d2 = y @ (SI @ y)
+    if not d2 <= gate:   # NaN rejects too
+        return False, d2, x, P, PHT, Sm, SI
+    K = PHT @ SI
+    x1 = x + K @ y
+    P1 = P - K @ PHT.T
+    return True, d2, x1, (P1 + P1.T) * 0.5, K, Sm, SI
+
+
+@nb.njit(cache=True)
+def _update_state(x, P, i, y, Sm):
+    """Update by a measurement of state ``i`` with residual ``y`` and innovation variance ``Sm``."""
+    K = P[:, i] / Sm
+    P1 = P - np.outer(K, P[i, :])
+    return x + K * y, P1, K

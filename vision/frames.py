@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 
+import numba as nb
 import numpy as np
 
 __all__ = [
@@ -239,24 +240,27 @@ def so3_log(R) -> np.ndarray:
 # ---- scalar fast paths (filters call these thousands of times a second) ----
 
 
+@nb.njit(cache=True)
 def R_from_rpy_scalar(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
-    """:func:`R_from_rpy` for Python floats, about 20x faster than the broadcasting version."""
+    """:func:`R_from_rpy` for one set of floats; compiled, so that the filter's kernels call it."""
     cr, sr = math.cos(roll_rad), math.sin(roll_rad)
     cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
     cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    R[1, 0], R[1, 1], R[1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    R[2, 0], R[2, 1], R[2, 2] = -sp, cp * sr, cp * cr
+    return R
 
 
+@nb.njit(cache=True)
 def rpy_from_R_scalar(R) -> tuple[float, float, float]:
-    """:func:`rpy_from_R` of one matrix, as Python floats."""
+    """:func:`rpy_from_R` of one matrix, as floats."""
     return (math.atan2(R[2, 1], R[2, 2]), math.asin(max(-1.0, min(1.0, -R[2, 0]))),
             math.atan2(R[1, 0], R[0, 0]))
 
 
+@nb.njit(cache=True)
 def so3_exp_scalar(wx: float, wy: float, wz: float) -> np.ndarray:
     """:func:`so3_exp` of one rotation vector given as three floats."""
     th2 = wx * wx + wy * wy + wz * wz
@@ -265,8 +269,8 @@ def so3_exp_scalar(wx: float, wy: float, wz: float) -> np.ndarray:
     else:
         th = math.sqrt(th2)
         A, B = math.sin(th) / th, (1.0 - math.cos(th)) / th2
-    return np.array([
-        [1.0 - B * (wy * wy + wz * wz), -A * wz + B * wx * wy, A * wy + B * wx * wz],
-        [A * wz + B * wx * wy, 1.0 - B * (wx * wx + wz * wz), -A * wx + B * wy * wz],
-        [-A * wy + B * wx * wz, A * wx + B * wy * wz, 1.0 - B * (wx * wx + wy * wy)],
-    ])
+    E = np.empty((3, 3))
+    E[0, 0], E[0, 1], E[0, 2] = 1.0 - B * (wy * wy + wz * wz), -A * wz + B * wx * wy, A * wy + B * wx * wz
+    E[1, 0], E[1, 1], E[1, 2] = A * wz + B * wx * wy, 1.0 - B * (wx * wx + wz * wz), -A * wx + B * wy * wz
+    E[2, 0], E[2, 1], E[2, 2] = -A * wy + B * wx * wz, A * wx + B * wy * wz, 1.0 - B * (wx * wx + wy * wy)
+    return E
