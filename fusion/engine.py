@@ -234,11 +234,7 @@ class FusionStream:
         """Wheel speed; the first one (and one after a run of rejections) sets the state."""
         ekf, n = self.ekf, self.options.noise
         if not self._speed_initialized or self._speed_rejected_in_row >= self.options.reacquire_after_rejections:
-            ekf.x[S.SPEED], ekf.x[S.ACCEL_X] = speed, 0.0
-            for i, sig in ((S.SPEED, n.speed_meas_m_s), (S.ACCEL_X, n.init_accel_m_s2)):
-                ekf.P[i, :] = 0.0
-                ekf.P[:, i] = 0.0
-                ekf.P[i, i] = sig**2
+            self._reset(((S.SPEED, speed, n.speed_meas_m_s), (S.ACCEL_X, 0.0, n.init_accel_m_s2)))
             self.counts["speed_reacquired"] += self._speed_initialized
             self._speed_initialized, self._speed_rejected_in_row = True, 0
             return
@@ -280,17 +276,37 @@ class FusionStream:
     def _reacquire(self, angles, kappa: float = math.nan) -> None:
         """Reset the road states to agree with ``angles`` and reopen their covariance."""
         ekf, n = self.ekf, self.options.noise
-        ekf.x[S.YAW_REL] = angles[2]
-        ekf.x[S.BANK] = ekf.x[S.ROLL_W] - angles[0]
-        ekf.x[S.GRADE] = ekf.x[S.PITCH_W] - angles[1]
-        ekf.x[S.BANK_RATE] = 0.0
-        if math.isfinite(kappa):
-            ekf.x[S.CURVATURE] = kappa
-        for i, sig in ((S.YAW_REL, n.init_angle_rad), (S.BANK, n.init_bank_rad), (S.GRADE, n.init_grade_rad),
-                       (S.BANK_RATE, n.init_bank_rate_rad_s), (S.CURVATURE, n.init_curvature_1_m)):
+        x = ekf.x
+        self._reset(((S.YAW_REL, angles[2], n.init_angle_rad), (S.BANK, x[S.ROLL_W] - angles[0], n.init_bank_rad),
+                     (S.GRADE, x[S.PITCH_W] - angles[1], n.init_grade_rad),
+                     (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s),
+                     (S.CURVATURE, kappa if math.isfinite(kappa) else x[S.CURVATURE], n.init_curvature_1_m)))
+
+    def _reset(self, states) -> None:
+        """Give states ``(index, value, sigma)`` new values, uncorrelated with the rest.
+
+        For the smoother the reset is part of the last step's prediction: a new value
+        independent of the past. That step's prior takes the reset values and variances and its
+        Jacobian loses the rows of the reset states, so that the smoother carries no
+        information backwards across the reset (otherwise the jump of the reset is read as a
+        measurement and smeared over the seconds before it).
+        """
+        ekf = self.ekf
+        idx = [i for i, _, _ in states]
+        for i, value, sig in states:
+            ekf.x[i] = value
             ekf.P[i, :] = 0.0
             ekf.P[:, i] = 0.0
             ekf.P[i, i] = sig**2
+        if self.record and self.steps:
+            st = self.steps[-1]
+            st.x_prior, st.P_prior, st.F = st.x_prior.copy(), st.P_prior.copy(), st.F.copy()
+            st.F[idx, :] = 0.0
+            for i, value, sig in states:
+                st.x_prior[i] = value
+                st.P_prior[i, :] = 0.0
+                st.P_prior[:, i] = 0.0
+                st.P_prior[i, i] = sig**2
 
     def _apply_late(self, item: VisionMeasurement) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it
