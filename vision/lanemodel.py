@@ -355,6 +355,44 @@ def _zeta_column(p, y, t, z, k_of, edge_line, scale, zc, K, J, nc, first):  # pr
 
 
 @nb.njit(cache=True)
+def _spd_inverse(A, out):  # pragma: no cover (numba)
+    """Inverse of the symmetric positive definite ``A`` into ``out`` by Cholesky (the normal
+    equations are small, 9 to 15 unknowns: loops beat two LAPACK calls here). False when
+    ``A`` is not positive definite (an edge or a line without points)."""
+    n = A.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        d = A[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 1e-300 * max(1.0, abs(A[j, j])):
+            return False
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, n):
+            v = A[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / L[j, j]
+    # inverse of L (lower triangular), then A^-1 = L^-T L^-1
+    Li = np.zeros((n, n))
+    for i in range(n):
+        Li[i, i] = 1.0 / L[i, i]
+        for j in range(i):
+            v = 0.0
+            for k in range(j, i):
+                v -= L[i, k] * Li[k, j]
+            Li[i, j] = v / L[i, i]
+    for i in range(n):
+        for j in range(i, n):
+            v = 0.0
+            for k in range(j, n):
+                v += Li[k, i] * Li[k, j]
+            out[i, j] = v
+            out[j, i] = v
+    return True
+
+
+@nb.njit(cache=True)
 def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma: no cover (numba)
     """Two passes of weighted normal equations; returns ``(ok, p, cov, s2, line_scale)``.
 
@@ -374,6 +412,7 @@ def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma:
     p = np.zeros(P)
     Ai = np.zeros((P, P))
     zc = np.zeros(n)
+    res = np.empty(n)
     if nz:
         _zeta_column(p, y, t, z, k_of, edge_line, scale, zc, K, J, nc, True)
     for npass in range(2):
@@ -387,6 +426,7 @@ def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma:
             mr2 = 0.0
             for i in range(n):
                 r = y[i] - _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz)
+                res[i] = r
                 g0 = indep[i]
                 g1 = indep[i] * q[i] * q[i]
                 rr = indep[i] * r * r
@@ -405,8 +445,7 @@ def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma:
                 w[i] = indep[i] / var
             # Outliers (beyond 4 sigma of the noise model) get no weight in the second pass.
             for i in range(n):
-                r = y[i] - _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz)
-                if r * r * w[i] > 16.0 * indep[i]:
+                if res[i] * res[i] * w[i] > 16.0 * indep[i]:
                     w[i] = 0.0
             if nc > 0:
                 kappa0 = 2.0 * p[K + J] / 100.0
@@ -452,11 +491,14 @@ def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma:
                 iu = idx[u]
                 wu = wi * col[u]
                 rhs[iu] += wu * yi
-                for v in range(m):
+                for v in range(u, m):   # the upper triangle: idx is increasing
                     A[iu, idx[v]] += wu * col[v]
-        if np.abs(np.linalg.det(A)) < 1e-300:
+        for u in range(P):
+            for v in range(u):
+                A[u, v] = A[v, u]
+        ok = _spd_inverse(A, Ai)
+        if not ok:
             return False, p, Ai, 0.0, scale
-        Ai = np.linalg.inv(A)
         p = Ai @ rhs
     # residuals, variance, lag-1 autocorrelation along each edge
     s2 = 0.0
