@@ -117,9 +117,11 @@ def test_frame_source_order_and_errors(tmp_path):
 def test_workers_share_a_video_like_one_process():
     """Two processes over the sample drive's mp4 (the second seeks to its piece and warms up on
     the 30 frames before it) give the single run's table: the same frames, the first piece
-    identical, and the same accuracy against truth (roll RMSE within 0.02 deg). After the cut
-    some rows depend on the seed chain: measured 0.06 deg apart at most with this cut, 0.34 deg
-    with the cut 1 frame earlier (vision.video.WARM_UP_FRAMES), hence 0.5 deg."""
+    identical, and the same accuracy against truth (roll RMSE within 0.02 deg; measured 0.629
+    and 0.633). After the cut some rows depend on the seed chain (vision.video.WARM_UP_FRAMES):
+    on this 640x360 drive in a bank runoff a frame's roll moves with it by up to 0.69 deg
+    (measured with the grey from the luma plane; 0.06 and 0.34 deg through BGR at two cuts), so
+    single rows are allowed 1 deg."""
     from fusion.config import load_config
     from fusion.drive import SAMPLE_DRIVE
     from vision.video import estimate_video
@@ -140,10 +142,43 @@ def test_workers_share_a_video_like_one_process():
     print(f"rows equal to 1e-6 deg: {same.mean():.1%}; largest difference "
           f"{np.nanmax(np.abs(one['roll_deg'] - two['roll_deg'])):.3f} deg")
     assert same[: len(same) // 2].all()  # the first worker's piece is the single run's start
-    assert np.nanmax(np.abs(one["roll_deg"] - two["roll_deg"])) < 0.5
     rmse = []
     for tab in (one, two):
         ok = tab[tab["valid"] == 1]
         rmse.append(float(np.sqrt(np.mean((ok["roll_deg"].to_numpy() - truth.loc[ok["frame"], "roll_deg"].to_numpy()) ** 2))))
+    assert np.nanmax(np.abs(one["roll_deg"] - two["roll_deg"])) < 1.0
     assert abs(rmse[0] - rmse[1]) < 0.02
     assert max(rmse) < 1.0  # the sample drive's vision roll RMSE is 0.61 deg (bank runoffs)
+
+
+def test_grey_frames_come_from_the_luma_plane(tmp_path):
+    """The estimator reads a video's grey straight from the decoded luma plane. Flat grey
+    frames written by OpenCV come back within 1 level of what was written (through BGR and
+    BGR2GRAY they come back 1 to 2 levels darker), and a seek gives the frames, numbered, that
+    decoding from the start gives, bit for bit."""
+    from fusion.drive import SAMPLE_DRIVE
+    from vision.video import _frames_from
+
+    levels = (20, 60, 100, 140, 180, 220, 250)
+    path = tmp_path / "grey.mp4"
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (320, 240))
+    for v in levels:
+        w.write(np.full((240, 320, 3), v, np.uint8))
+    w.release()
+    got = [(i, img) for i, img in _frames_from(FrameSource(path), 0, luma=True)]
+    assert [i for i, _ in got] == list(range(len(levels)))
+    assert all(img.ndim == 2 and img.dtype == np.uint8 for _, img in got)
+    assert max(abs(float(img.mean()) - v) for (_, img), v in zip(got, levels)) <= 1.0
+
+    src = FrameSource(SAMPLE_DRIVE / "video.mp4")
+    from_start = {i: img for i, img in _frames_from(src, 0, luma=True) if 150 <= i < 160}
+    seeked = []
+    for i, img in _frames_from(src, 150, luma=True):
+        if i >= 160:
+            break
+        seeked.append((i, img))
+    assert [i for i, _ in seeked] == list(range(150, 160))
+    assert all(np.array_equal(img, from_start[i]) for i, img in seeked)
+    # and they are the pictures OpenCV decodes (up to its colour round trip)
+    bgr = {i: img for _, (i, img) in zip(range(10), _frames_from(src, 150))}
+    assert max(np.abs(cv2.cvtColor(bgr[i], cv2.COLOR_BGR2GRAY).astype(int) - img).max() for i, img in seeked) <= 3
