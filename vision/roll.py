@@ -44,8 +44,8 @@ from __future__ import annotations
 
 import math
 
+import numba as nb
 import numpy as np
-from scipy.optimize import brentq
 
 from .errors import VisionError
 
@@ -112,8 +112,8 @@ def solve_numeric(alphas_rad, coef, seed_rad: float = 0.0, *, span_rad: float = 
     VisionError
         If no sign change is found in the domain.
     """
-    a = np.atleast_2d(np.asarray(alphas_rad, dtype=float))
-    c = np.asarray(coef, dtype=float)
+    a = np.ascontiguousarray(np.atleast_2d(np.asarray(alphas_rad, dtype=float)))
+    c = np.ascontiguousarray(np.asarray(coef, dtype=float))
     if not np.all(np.isfinite(a)):
         raise VisionError("roll: non-finite edge angles")
     lo_dom, hi_dom = _domain(a)
@@ -122,30 +122,86 @@ def solve_numeric(alphas_rad, coef, seed_rad: float = 0.0, *, span_rad: float = 
     if not lo_dom < hi_dom:
         raise VisionError("roll: edges span more than 180 deg")
     seed = min(max(seed_rad, lo_dom), hi_dom)
+    ok, phi = _bracket_and_solve(a, c, float(seed), float(span_rad), lo_dom, hi_dom, float(xtol))
+    if not ok:
+        raise VisionError("roll: the width equation has no root (markers not seen as a pair)")
+    return phi
 
-    def f(phi: float) -> float:
-        return float(np.tan(a - phi).sum(axis=0) @ c)
 
-    f0 = f(seed)
+@nb.njit(cache=True)
+def _width_f(a, c, phi):  # pragma: no cover (numba)
+    """``sum_k c_k sum_rows tan(a[row, k] - phi)``."""
+    total = 0.0
+    for k in range(a.shape[1]):
+        s = 0.0
+        for r in range(a.shape[0]):
+            s += math.tan(a[r, k] - phi)
+        total += s * c[k]
+    return total
+
+
+@nb.njit(cache=True)
+def _bracket_and_solve(a, c, seed, span, lo_dom, hi_dom, xtol):  # pragma: no cover (numba)
+    """:func:`solve_numeric`'s search: the bracket around ``seed`` widened until ``f`` changes
+    sign (the sign change nearest the seed), then Brent's method. ``(found, phi)``."""
+    f0 = _width_f(a, c, seed)
     if f0 == 0.0:
-        return seed
-    span = span_rad
+        return True, seed
     while True:
         lo, hi = max(seed - span, lo_dom), min(seed + span, hi_dom)
-        flo, fhi = f(lo), f(hi)
-        # Nearest sign change to the seed on either side.
-        cands = []
-        if np.sign(flo) != np.sign(f0):
-            cands.append((seed - lo, lo, seed))
-        if np.sign(fhi) != np.sign(f0):
-            cands.append((hi - seed, seed, hi))
-        if cands:
-            cands.sort()
-            _, x0, x1 = cands[0]
-            return float(brentq(f, x0, x1, xtol=xtol, rtol=4 * np.finfo(float).eps, maxiter=200))
+        flo, fhi = _width_f(a, c, lo), _width_f(a, c, hi)
+        left = np.sign(flo) != np.sign(f0)
+        right = np.sign(fhi) != np.sign(f0)
+        if left and (not right or seed - lo <= hi - seed):
+            return True, _brentq(a, c, lo, seed, xtol, 4.0 * 2.220446049250313e-16, 200)
+        if right:
+            return True, _brentq(a, c, seed, hi, xtol, 4.0 * 2.220446049250313e-16, 200)
         if lo <= lo_dom and hi >= hi_dom:
-            raise VisionError("roll: the width equation has no root (markers not seen as a pair)")
+            return False, math.nan
         span *= 2.0
+
+
+@nb.njit(cache=True)
+def _brentq(a, c, xa, xb, xtol, rtol, maxiter):  # pragma: no cover (numba)
+    """Brent's method as SciPy's ``brentq`` (scipy/optimize/Zeros/brentq.c), on :func:`_width_f`."""
+    xpre, xcur = xa, xb
+    xblk, fblk, spre, scur = 0.0, 0.0, 0.0, 0.0
+    fpre, fcur = _width_f(a, c, xpre), _width_f(a, c, xcur)
+    if fpre == 0.0:
+        return xpre
+    if fcur == 0.0:
+        return xcur
+    for _ in range(maxiter):
+        if fpre != 0.0 and fcur != 0.0 and (fpre < 0.0) != (fcur < 0.0):
+            xblk, fblk = xpre, fpre
+            spre = scur = xcur - xpre
+        if abs(fblk) < abs(fcur):
+            xpre, xcur, xblk = xcur, xblk, xcur
+            fpre, fcur, fblk = fcur, fblk, fcur
+        delta = (xtol + rtol * abs(xcur)) / 2.0
+        sbis = (xblk - xcur) / 2.0
+        if fcur == 0.0 or abs(sbis) < delta:
+            return xcur
+        if abs(spre) > delta and abs(fcur) < abs(fpre):
+            if xpre == xblk:
+                stry = -fcur * (xcur - xpre) / (fcur - fpre)          # interpolate
+            else:
+                dpre = (fpre - fcur) / (xpre - xcur)                  # extrapolate
+                dblk = (fblk - fcur) / (xblk - xcur)
+                stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre))
+            if 2.0 * abs(stry) < min(abs(spre), 3.0 * abs(sbis) - delta):
+                spre, scur = scur, stry                               # good short step
+            else:
+                spre, scur = sbis, sbis                               # bisect
+        else:
+            spre, scur = sbis, sbis
+        xpre, fpre = xcur, fcur
+        if abs(scur) > delta:
+            xcur += scur
+        else:
+            xcur += delta if sbis > 0 else -delta
+        fcur = _width_f(a, c, xcur)
+    return xcur
 
 
 def pade_tan(x):
