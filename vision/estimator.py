@@ -902,8 +902,7 @@ class Estimator:
         d_alpha = np.zeros((xs.size, len(groups), P))
         alphas = np.zeros((xs.size, len(groups)))
         for g, ks in enumerate(groups):
-            y = np.mean([model.y(k, xs) for k in ks], axis=0)
-            rows = np.mean([model._row(k, xs) for k in ks], axis=0)       # (n_x, P)
+            y, rows = model.mean_y_and_rows(ks, xs)                        # (n_x,), (n_x, P)
             den = h * h + y * y
             d_alpha[:, g, :] = rows * (h / den)[:, None]
             if model.has_sag:
@@ -919,8 +918,8 @@ class Estimator:
         vals = np.zeros(4)
         for n, j in enumerate(outer):
             ks = np.flatnonzero(model.edge_line == j)
-            M[2 * n] = np.mean([model._row(k, x0)[0] for k in ks], axis=0)
-            vals[2 * n] = float(np.mean([model.y(k, x0) for k in ks]))
+            y_j, rows_j = model.mean_y_and_rows(ks, x0)
+            M[2 * n], vals[2 * n] = rows_j[0], y_j[0]
             M[2 * n + 1] = model.slope_row(j, x0)
             vals[2 * n + 1] = float(model.slope(j, x0))
         e = np.array([1e-4, 1e-6, 1e-4, 1e-6])               # m, rad

@@ -204,6 +204,28 @@ class LaneModel:
             R[:, K + J + i] = self.line_scale[self.edge_line[k]] * (x / _XS) ** (i + 2)
         return R
 
+    def mean_y_and_rows(self, ks, x) -> tuple[np.ndarray, np.ndarray]:
+        """Mean of :meth:`y` and of :meth:`_row` over edges ``ks`` at ``x`` (a cross-section's
+        line centre, or one edge), in one pass."""
+        x = np.atleast_1d(np.asarray(x, float))
+        ks = tuple(ks)
+        K, J, nc = self.n_edges, self.n_lines, self.c.size
+        w = 1.0 / len(ks)
+        R = np.zeros((x.size, self.cov.shape[0]))
+        t = x / _XS
+        powers = [t ** (i + 2) for i in range(nc)]
+        shape = sum(ci * tp for ci, tp in zip(self.c, powers)) if nc else 0.0
+        y = np.zeros_like(x)
+        for k in ks:
+            j = self.edge_line[k]
+            s = self.line_scale[j]
+            y += w * (self.a[k] + self.b[j] * x + s * shape)
+            R[:, k] += w
+            R[:, K + j] += w * x
+            for i in range(nc):
+                R[:, K + J + i] += w * s * powers[i]
+        return y, R
+
     def slope_row(self, j: int, x: float) -> np.ndarray:
         """Derivatives of ``slope(j, x)`` with respect to the parameters."""
         K, J = self.n_edges, self.n_lines
@@ -540,7 +562,7 @@ def lane_direction(model: LaneModel, height_m: float, lines=None, x0_m: float = 
     rows = []
     for j in lines:
         ks = np.flatnonzero(model.edge_line == j)
-        yj = float(np.mean([model.y(k, x0_m) for k in ks]))
+        yj = float(model.y_edges(ks, np.array([float(x0_m)])).mean())
         bj = float(model.slope(j, x0_m))
         n = np.array([height_m * bj, -height_m, x0_m * bj - yj])
         rows.append(n / (np.sqrt(n @ n) * max(model.sigma_b(j), 1e-9)))
