@@ -6,7 +6,6 @@ import sys
 from pathlib import Path
 
 import can
-import cv2
 import numpy as np
 import pandas as pd
 import pytest
@@ -17,7 +16,7 @@ from fusion.pipeline import fuse
 from fusion.realtime import LiveFusion
 from imu import read_log
 from vision.options import options_from_table
-from vision.video import estimate_video
+from vision.video import FrameSource, estimate_video
 
 SCENARIO = Path(__file__).resolve().parents[1] / "configs" / "scenarios" / "test" / "tiny_banked_curve.toml"
 
@@ -42,13 +41,8 @@ def test_live_fusion_equals_the_offline_run(drive):
     offline = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts).fused
     # live: every frame's result is handed in once the bus has moved 80 ms past its capture
     live = LiveFusion(cfg)
-    cap = cv2.VideoCapture(str(drive / "video.mp4"))
-    images = []
-    while True:
-        ok, img = cap.read()
-        if not ok:
-            break
-        images.append(img)
+    # the pictures the offline run's estimator saw
+    images = list(FrameSource(drive / "video.mp4").grey_frames())
     queue = list(zip(frames["t_s"], images))
     for msg in can.LogReader(drive / "can.asc"):
         live.push_can(msg)

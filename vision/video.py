@@ -78,6 +78,12 @@ class FrameSource:
         for _, img in _frames_from(self, 0):
             yield img
 
+    def grey_frames(self) -> Iterator[np.ndarray]:
+        """The frames as :func:`estimate_video` hands them to the estimator: a video's from its
+        luma plane (:func:`_luma_frames`), pictures converted to grey."""
+        for _, img in _frames_from(self, 0, luma=True):
+            yield img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+
 
 def count_frames(path: str | os.PathLike) -> int:
     """Number of frames: the folder's pictures, or a video's frames counted by decoding
