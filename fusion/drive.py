@@ -6,14 +6,13 @@ Every problem is one line naming the file: a missing file, a ``frames.csv`` that
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from .config import DriveConfig, VideoTiming
+from .config import VideoTiming
 from .errors import InputError
 
 __all__ = ["DriveFiles", "SAMPLE_DRIVE", "read_frame_times", "read_truth", "find_drive_files"]

@@ -315,8 +315,6 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self._R_accel = np.diag(np.asarray(noise.accel_meas_m_s2, dtype=float) ** 2)
         self.curvature_rejected = 0
 
-    # ---- body rates ----
-
     # ---- process ----
 
     def predict_x(self, u: ImuStep = None) -> None:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .ekf import DIM_X, AttitudeEKF, ImuStep, NoiseModel, S, VisionMeasurement, vision_hx, vision_jacobian
+from .ekf import AttitudeEKF, ImuStep, NoiseModel, S, VisionMeasurement, vision_hx, vision_jacobian
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 

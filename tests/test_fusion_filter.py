@@ -1,8 +1,6 @@
 """The fusion filter against simulator truth, with vision results drawn from the truth plus
 known noise (so that the filter, not the vision estimator, is under test)."""
 
-import math
-
 import numpy as np
 import pytest
 from hypothesis import given, settings

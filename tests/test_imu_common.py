@@ -9,7 +9,6 @@ the IMU's z axis (specific force -9.81 m/s^2 in FRD at rest).
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pandas as pd

@@ -1,6 +1,5 @@
 """``vifusion vision`` and the frame sources: files in, vision.csv out, one-line errors."""
 
-import math
 import tomllib
 from pathlib import Path
 

@@ -3,7 +3,6 @@ Udacity highway frames. The estimator finds the lanes or says why not, never rai
 its pitch, brought into the IMU frame with the calibration files, agrees with OXTS."""
 
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np

@@ -158,8 +158,6 @@ def main(argv: list[str] | None = None) -> int:
         for cname, opt in cfgs.items():
             results[(name, cname)] = r = run(name, opt, get, truth, frames)
             v, s = r.valid, r.valid & r.steady
-            e_all = r.err_deg[v]
-            e_st = r.err_deg[s]
             print(f"  {name:24s} {cname:8s} valid {v.mean():5.1%}, steady {s.sum():4d} frames, "
                   f"median {np.median(r.ms):5.2f} ms", flush=True)
         del get

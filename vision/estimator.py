@@ -61,8 +61,8 @@ from .ipm import Bev, BevGrid, default_grid, ground_from_rays, undistortion_look
 from .lanemodel import LaneModel, fit_lane_model, lane_direction
 from .lanes import LaneOptions, Marker, detect_markers
 from .options import EstimatorOptions
-from .roll import (coefficients_eq8, coefficients_eq10, roll_bound_eq14, roll_sigma, solve_numeric, solve_pade)
-from .vanishing import (angle_sigmas, intersect_lines, r3_from_vp, r3_from_yaw_pitch, vp_bounds, vp_from_r3,
+from .roll import (coefficients_eq8, coefficients_eq10, roll_bound_eq14, solve_numeric, solve_pade)
+from .vanishing import (intersect_lines, r3_from_vp, r3_from_yaw_pitch, vp_from_r3,
                         yaw_pitch_from_r3)
 
 __all__ = ["VisionEstimate", "Estimator", "estimate", "camera_xyz_from_vehicle", "vehicle_from_camera_xyz"]

@@ -72,7 +72,6 @@ def _inputs(args):
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
-    import pandas as pd
 
     from imu import read_log
     from vision.options import options_from_table

@@ -23,7 +23,7 @@ import numpy as np
 
 from vision.camera import Camera
 
-from .road import eval_surface, intersect_ray, node_index
+from .road import intersect_ray
 
 __all__ = ["Look", "Markings", "Renderer"]
 
