@@ -181,3 +181,20 @@ def test_grey_frames_come_from_the_luma_plane(tmp_path):
     # and they are the pictures OpenCV decodes (up to its colour round trip)
     bgr = {i: img for _, (i, img) in zip(range(10), _frames_from(src, 150))}
     assert max(np.abs(cv2.cvtColor(bgr[i], cv2.COLOR_BGR2GRAY).astype(int) - img).max() for i, img in seeked) <= 3
+
+
+def test_a_corrupt_video_is_read_up_to_the_damage(tmp_path):
+    """30 kB of noise in the middle of the sample drive's mp4: the grey frames stop where
+    OpenCV's reader stops (the frames after it count as missing), without an exception."""
+    from fusion.drive import SAMPLE_DRIVE
+    from vision.video import _frames_from
+
+    path = tmp_path / "corrupt.mp4"
+    data = bytearray((SAMPLE_DRIVE / "video.mp4").read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 30_000] = np.random.default_rng(0).integers(0, 256, 30_000, dtype=np.uint8).tobytes()
+    path.write_bytes(bytes(data))
+    src = FrameSource(path)
+    n_bgr = sum(1 for _ in _frames_from(src, 0))
+    n_grey = sum(1 for _ in _frames_from(src, 0, luma=True))
+    assert 0 < n_grey == n_bgr < len(FrameSource(SAMPLE_DRIVE / "video.mp4"))

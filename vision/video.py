@@ -249,6 +249,20 @@ _FULL_RANGE = {"yuvj420p", "yuvj422p", "yuvj444p", "gray"}
 _LUMA_TO_GREY = np.clip(np.round((np.arange(256) - 16.0) * 255.0 / 219.0), 0, 255).astype(np.uint8)
 
 
+def _decode_until_error(container, stream):
+    """The stream's decoded frames up to the first undecodable packet (where OpenCV's reader
+    stops too: the frames after it count as missing)."""
+    import av
+
+    frames = container.decode(stream)
+    while True:
+        try:
+            frame = next(frames)
+        except (StopIteration, av.FFmpegError):
+            return
+        yield frame
+
+
 def _luma_frames(path: Path, start: int):
     """The grey pictures of a video straight from its decoded luma plane (PyAV), or None when
     PyAV cannot open it or the stream is not planar YUV (OpenCV reads it then).
@@ -280,7 +294,7 @@ def _luma_frames(path: Path, start: int):
         if seek:
             container.seek(int(t0 + start / (rate * tb)), stream=stream, backward=True, any_frame=False)
         i = -1
-        for frame in container.decode(stream):
+        for frame in _decode_until_error(container, stream):
             if seek and i < 0:
                 if frame.pts is None:
                     yield None

@@ -138,8 +138,8 @@ def run(args: argparse.Namespace) -> int:
                                     workers=args.workers or default_workers())
     timings["vision"] = time.perf_counter() - t0
     if vstats.get("frames_missing"):
-        warnings.append(f"{files.video}: has {vstats['frames_read']} frames, frames.csv lists {len(frames)}; "
-                        f"the last {vstats['frames_missing']} were not processed")
+        warnings.append(f"{files.video}: {vstats['frames_read']} frames could be read, frames.csv lists "
+                        f"{len(frames)}; the last {vstats['frames_missing']} were not processed")
     _write_csv(vision, tmp / "vision.csv")
 
     time_offset = None
