@@ -1,0 +1,89 @@
+"""Where in time the fused errors and NEES failures are: the filter alone on cached drives.
+
+Usage::
+
+    .venv/bin/python tools/fusion_errors_by_time.py [--runs DIR] [--bins] [drive names ...]
+
+Reads each drive from ``.cache/drives/full-<name>-*/`` (config, CAN log, truth) and its
+``vision.csv`` from ``<runs>/full-<name>-*-run/`` (default: next to the drive, as
+``tools/bench_fusion.py`` writes it); runs :func:`fusion.pipeline.fuse` (forward filter) and
+prints the RMSE after 2 s and the NEES share inside its 95 % band (:mod:`fusion.metrics`), and
+with ``--bins`` per second: truth bank and bank rate, RMS error per angle, RMS of error/sigma,
+and the share of samples inside / above / below the NEES band. Seconds, not minutes: the vision
+is not re-run.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.stats import chi2
+
+ROOT = Path(__file__).resolve().parents[1]
+CACHE = ROOT / ".cache" / "drives"
+DRIVES = ("banked_curves_60s", "banked_curve_right_7deg", "banked_curve_left_5deg")
+ANGLES = ("roll", "pitch", "yaw", "bank")
+
+
+def evaluate(name: str, runs: Path | None = None, options=None):
+    from fusion.config import load_config
+    from fusion.metrics import consistency, rmse_table
+    from fusion.options import fusion_options_from_table
+    from fusion.pipeline import fuse
+    from imu import read_log
+
+    drive = next(p for p in sorted(CACHE.glob(f"full-{name}-*")) if not p.name.endswith(("-run", ".partial")))
+    cfg = load_config(drive / "config.toml")
+    imu, _ = read_log(next(drive.glob("can.*")), cfg.can, cfg.imu)
+    vision = pd.read_csv((runs or drive.parent) / (drive.name + "-run") / "vision.csv")
+    truth = pd.read_csv(drive / "truth.csv")
+    opts = options or fusion_options_from_table(cfg.extra.get("fusion"))[0]
+    run = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts)
+    t0 = float(run.fused["t_s"].iloc[0]) + 2.0
+    c = consistency(run.fused, truth, run.cov, t0)
+    return rmse_table(run.fused, truth, t0, angles=ANGLES), c, run, truth
+
+
+def bins(run, truth, width_s: float = 1.0) -> None:
+    from fusion.metrics import interp_truth
+
+    f = run.fused
+    t = f["t_s"].to_numpy()
+    tr = interp_truth(truth, t)
+    e = np.radians(np.stack([f[f"{a}_deg"] - tr[f"{a}_deg"] for a in ANGLES], 1))
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(run.cov, e[..., None])[..., 0])
+    lo, hi = chi2.ppf(0.025, 4), chi2.ppf(0.975, 4)
+    sig = np.sqrt(np.diagonal(run.cov, axis1=1, axis2=2))
+    rate = np.gradient(tr["bank_deg"].to_numpy(), t)
+    print(f"{'t':>5} {'bank':>5} {'rate':>6} | {'roll':>6} {'pitch':>6} {'yaw':>6} {'bank':>6} | "
+          f"{'z_r':>5} {'z_p':>5} {'z_y':>5} {'z_b':>5} | {'in%':>4} {'hi%':>4} {'lo%':>4}")
+    for b in np.arange(0.0, t[-1] - t[0], width_s):
+        m = (t - t[0] >= b) & (t - t[0] < b + width_s)
+        rms = np.degrees(np.sqrt(np.mean(e[m] ** 2, 0)))
+        z = np.sqrt(np.mean((e[m] / sig[m]) ** 2, 0))
+        print(f"{b:5.1f} {tr['bank_deg'][m].mean():5.1f} {rate[m].mean():6.2f} | " + " ".join(f"{x:6.3f}" for x in rms)
+              + " | " + " ".join(f"{x:5.1f}" for x in z) + f" | {100 * np.mean((nees[m] >= lo) & (nees[m] <= hi)):4.0f}"
+              f" {100 * np.mean(nees[m] > hi):4.0f} {100 * np.mean(nees[m] < lo):4.0f}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("names", nargs="*", default=DRIVES)
+    ap.add_argument("--runs", type=Path, help="folder holding the <drive>-run/vision.csv folders")
+    ap.add_argument("--bins", action="store_true", help="per-second table")
+    args = ap.parse_args(argv)
+    for name in args.names:
+        acc, c, run, truth = evaluate(name, args.runs)
+        print(f"{name:<26} " + " ".join(f"{a} {acc[a]:.3f}" for a in ANGLES)
+              + f"  NEES inside {100 * c.fraction_inside:.1f}% (above {100 * c.fraction_above:.1f}, "
+              f"below {100 * c.fraction_below:.1f})")
+        if args.bins:
+            bins(run, truth)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
