@@ -4,9 +4,9 @@ Usage::
 
     .venv/bin/python tools/fusion_errors_by_time.py [--runs DIR] [--bins] [drive names ...]
 
-Reads each drive from ``.cache/drives/full-<name>-*/`` (config, CAN log, truth) and its
-``vision.csv`` from ``<runs>/full-<name>-*-run/`` (default: next to the drive, as
-``tools/bench_fusion.py`` writes it); runs :func:`fusion.pipeline.fuse` (forward filter) and
+Reads each drive as ``tools/bench_fusion.py`` caches it (``.cache/drives/full-<name>-<key>/``:
+config, CAN log, truth) and its ``vision.csv`` from ``<runs>/full-<name>-<key>-run/`` (default:
+next to the drive, where ``tools/bench_fusion.py`` writes it: run that once first); runs :func:`fusion.pipeline.fuse` (forward filter) and
 prints the RMSE after 2 s and the NEES share inside its 95 % band (:mod:`fusion.metrics`), and
 with ``--bins`` per second: truth bank and bank rate, RMS error per angle, RMS of error/sigma,
 and the share of samples inside / above / below the NEES band. Seconds, not minutes: the vision
@@ -22,8 +22,6 @@ import numpy as np
 import pandas as pd
 from scipy.stats import chi2
 
-ROOT = Path(__file__).resolve().parents[1]
-CACHE = ROOT / ".cache" / "drives"
 DRIVES = ("banked_curves_60s", "banked_curve_right_7deg", "banked_curve_left_5deg")
 ANGLES = ("roll", "pitch", "yaw", "bank")
 
@@ -35,7 +33,9 @@ def evaluate(name: str, runs: Path | None = None, options=None):
     from fusion.pipeline import fuse
     from imu import read_log
 
-    drive = next(p for p in sorted(CACHE.glob(f"full-{name}-*")) if not p.name.endswith(("-run", ".partial")))
+    from bench_fusion import cached_full_drive
+
+    drive = cached_full_drive(name)   # the drive of the current simulator (rendered if missing)
     cfg = load_config(drive / "config.toml")
     imu, _ = read_log(next(drive.glob("can.*")), cfg.can, cfg.imu)
     vision = pd.read_csv((runs or drive.parent) / (drive.name + "-run") / "vision.csv")
