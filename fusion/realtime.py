@@ -18,8 +18,6 @@ Example (a live bus; ``frames`` yields (capture time on the bus clock, image))::
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from imu import StreamDecoder
