@@ -136,11 +136,6 @@ class NoiseModel:
     #: regression on the true twist over the banked drives gives slopes 20-25 % off the model's.
     vision_road_model_error: float = 0.25
     gate_probability: float = 0.999                        # chi-square gate of every update
-    #: Vision noise where the road's twist in view differs from the twist at the vehicle (a
-    #: runoff starting or ending inside the look-ahead window): pitch and yaw (twist modelled
-    #: at the vehicle) and the lane curvature (:func:`curvature_per_twist_change_m`) get that
-    #: difference, read from the roll, times their gains as extra 1-sigma.
-    vision_twist_in_view_sigma: bool = True
 
     init_angle_rad: float = math.radians(5.0)
     init_bank_rad: float = math.radians(5.0)
@@ -182,28 +177,6 @@ class VisionMeasurement:
     lateral_offset_m: float = math.nan
     roll_lookahead_m: float = 0.0
     twist_m: tuple[float, float] = (0.0, 0.0)
-    lines_span_m: float = math.nan   # distance between the outermost lines used
-
-
-def curvature_per_twist_change_m(m: VisionMeasurement) -> float:
-    """Lane-curvature error per unit change of road twist along the view (1/m per rad/m^2), m.
-
-    On a twisted road a line at lateral offset ``y`` (from the camera) rises ``y (b(s+x) -
-    b(s))`` at distance ``x``; on the flat-road back-projection a point raised ``dz`` appears
-    at ``y (1 + dz / H)``: the line shifts sideways by ``y^2 (b(s+x) - b(s)) / H``, whose
-    second derivative in ``x`` is ``y^2 b'' / H``, a curvature the lane fit cannot tell from
-    the road's. The lane curvature is the mean of the outermost lines': gain
-    ``(y_l^2 + y_r^2) / (2 H)``. From the estimator's twist gains ``P = y_l + y_r``,
-    ``Y = y_l y_r / H`` and the span ``D = |y_l - y_r|``: ``y_l^2 + y_r^2 = (P^2 + D^2) / 2``
-    and ``H = (P^2 - D^2) / (4 Y)``. 0 when they are not known."""
-    P, Y = m.twist_m
-    D = m.lines_span_m
-    if not (math.isfinite(D) and D > 0.0 and Y != 0.0):
-        return 0.0
-    H = (P * P - D * D) / (4.0 * Y)
-    if not H > 0.1:
-        return 0.0
-    return 0.25 * (P * P + D * D) / H
 
 
 @dataclass(frozen=True)
@@ -341,8 +314,6 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self._gate = {k: float(chi2.ppf(noise.gate_probability, k)) for k in (1, 2, 3, 4)}
         self._R_accel = np.diag(np.asarray(noise.accel_meas_m_s2, dtype=float) ** 2)
         self.curvature_rejected = 0
-        self._twist_change = 0.0
-        self.curvature_twist_sigma = 0.0
 
     # ---- process ----
 
@@ -414,7 +385,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.x_post, self.P_post = self.x, self.P
         return True
 
-    def update_vision(self, m: VisionMeasurement, defer_roll: bool = False) -> bool:
+    def update_vision(self, m: VisionMeasurement) -> bool:
         """Vision (roll, pitch, yaw) relative to the road, with the estimator's own 1-sigma, then
         the lane-fit curvature when there is one, gated on its own: a curvature outlier must not
         throw away good angles, nor good angles carry a bad curvature in. Returns whether the
@@ -427,10 +398,6 @@ class AttitudeEKF(ExtendedKalmanFilter):
         estimator reads as pitch and yaw errors ``tau * m.twist_m`` (sample drive: 0.7 and
         1.6 deg in the runoff). The measurement is modelled with both, which turns the runoff
         from a vision error into information on the bank rate.
-
-        With ``defer_roll`` only pitch and yaw are used here (relative to the road at the
-        vehicle, twist modelled); the roll is kept by :class:`fusion.engine.FusionStream` until
-        the vehicle reaches the look-ahead point and applied there (:meth:`update_roll_ahead`).
         """
         n = self.noise
         curvature_1_m, curvature_sigma_1_m = m.curvature_1_m, m.curvature_sigma_1_m
@@ -438,35 +405,6 @@ class AttitudeEKF(ExtendedKalmanFilter):
         x_seen = self.x
         v = self.x[S.SPEED]
         lookahead = m.roll_lookahead_m if math.isfinite(m.roll_lookahead_m) and m.roll_lookahead_m > 0 else 0.0
-        # Twist in view minus twist here, rad/m: the road's mean twist over the look-ahead is
-        # (bank there - bank here) / L, which is the predicted roll here minus the measured one.
-        dtau = 0.0
-        if v > 1.0 and lookahead > 0.0:
-            dtau = (_angle_residual(vision_hx(self.x)[0], m.angles_rad[0]) / lookahead
-                    - self.x[S.BANK_RATE] / v)
-        self._twist_change = dtau
-        self.curvature_twist_sigma = 0.0
-        if n.vision_twist_in_view_sigma and lookahead > 0.0:
-            self.curvature_twist_sigma = curvature_per_twist_change_m(m) * abs(dtau) / (0.5 * lookahead)
-        if defer_roll and v > 1.0:
-            rows = np.array([1, 2])
-            H = vision_jacobian(self.x)
-            per_twist = np.array([0.0, m.twist_m[0], m.twist_m[1]]) / v
-            H[:, S.BANK_RATE] += per_twist
-            hx = vision_hx(self.x) + per_twist * self.x[S.BANK_RATE]
-            if n.vision_road_model_error > 0.0:
-                effect = abs(self.x[S.BANK_RATE]) * np.abs(per_twist)
-                sig = np.hypot(sig, n.vision_road_model_error * effect)
-            if n.vision_twist_in_view_sigma:
-                # The twist is modelled at the vehicle, but the lines are seen over the
-                # look-ahead window: where its mean twist differs from the one here (a runoff
-                # starting or ending in view) the model is off by up to that difference times
-                # the twist gains.
-                sig = np.hypot(sig, abs(dtau) * np.abs(np.array([0.0, m.twist_m[0], m.twist_m[1]])))
-            ok = self.gated_update(np.asarray(m.angles_rad, dtype=float)[rows], np.ascontiguousarray(H[rows]),
-                                   hx[rows], np.diag(sig[rows] ** 2), residual=_angle_residual)
-            self._update_curvature(curvature_1_m, curvature_sigma_1_m)
-            return ok
         if v > 1.0:
             dt_ahead = lookahead / v
             x_seen = self.x.copy()
@@ -483,27 +421,12 @@ class AttitudeEKF(ExtendedKalmanFilter):
             H, hx = vision_jacobian(x_seen), vision_hx(x_seen)
         ok = self.gated_update(np.asarray(m.angles_rad, dtype=float), H, hx,
                                np.diag(sig**2), residual=_angle_residual)
-        self._update_curvature(curvature_1_m, curvature_sigma_1_m)
-        return ok
-
-    def _update_curvature(self, curvature_1_m: float, curvature_sigma_1_m: float) -> None:
-        """The lane-fit curvature, gated on its own (:meth:`update_vision`)."""
-        n = self.noise
         if math.isfinite(curvature_1_m):
             s_k = curvature_sigma_1_m if math.isfinite(curvature_sigma_1_m) else n.curvature_meas_1_m
             s_k = max(s_k, n.curvature_sigma_floor_1_m + n.curvature_sigma_floor_rel * abs(curvature_1_m))
-            s_k = math.hypot(s_k, self.curvature_twist_sigma)
             if not self.gated_update_state(S.CURVATURE, curvature_1_m, s_k**2):
                 self.curvature_rejected += 1
-
-    def update_roll_ahead(self, roll_rad: float, r2: float) -> bool:
-        """A vision roll taken ``L`` metres back, applied now that the vehicle is where the
-        vision looked (:class:`fusion.engine.FusionStream`): relative to the road under the
-        wheels, so the bank in the model is the state itself, ``roll_rad`` already carries the
-        vehicle's own roll change since the frame. Variance ``r2``."""
-        H = np.ascontiguousarray(vision_jacobian(self.x)[0:1])
-        hx = vision_hx(self.x)[0:1]
-        return self.gated_update(np.array([roll_rad]), H, hx, np.array([[r2]]), residual=_angle_residual)
+        return ok
 
     def specific_force_model(self, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0):
         """Predicted specific force at the IMU (vehicle axes, m/s^2) and its Jacobian.

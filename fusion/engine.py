@@ -42,21 +42,6 @@ class FusionOptions:
     #: covariance is reset to the initial one, so that a filter that drifted while the lanes
     #: were lost cannot lock itself out.
     reacquire_after_rejections: int = 10
-    #: Apply the vision roll where the vision measured it: the roll comes from lane
-    #: cross-sections ``roll_lookahead_m`` ahead (5-25 m), i.e. relative to the road bank
-    #: there. The roll is held until the vehicle has driven that far (odometer of the speed
-    #: state) and then used as a measurement relative to the road under the wheels, with the
-    #: vehicle's own roll change since the frame (the propagated gyro) added. This is exact
-    #: for any bank profile, where the linear look-ahead ``bank + bank_rate L / v`` is not
-    #: where a runoff starts or ends inside the look-ahead window (measured on the banked
-    #: drives with the true bank: vision roll error near runoffs 0.45-0.71 deg RMS with the
-    #: linear model, 0.15-0.25 deg with the bank at the look-ahead point). Pitch and yaw are
-    #: used at once (they are relative to the road at the vehicle; twist modelled).
-    roll_at_lookahead_point: bool = True
-    #: A held roll older than this is dropped (the vehicle slowed down or stopped before
-    #: reaching the look-ahead point); rolls whose look-ahead would take longer are applied at
-    #: once with the linear look-ahead model, s.
-    roll_ahead_max_age_s: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -106,7 +91,6 @@ class _ImuSample:
     x_post: np.ndarray = None
     P_post: np.ndarray = None
     gyro_dot: np.ndarray = None
-    aux: tuple = None   # odometer, propagated roll and its variance, held vision rolls
 
 
 class FusionStream:
@@ -139,16 +123,9 @@ class FusionStream:
         self._rejected_in_row = 0
         self._speed_initialized = False
         self._speed_rejected_in_row = 0
-        # Held vision rolls (roll_at_lookahead_point): odometer m, propagated world roll rad
-        # and its variance rad^2 since the start; items (odo_due, t, roll, var, roll_prop,
-        # var_prop, bank).
-        self._odo = 0.0
-        self._roll_prop = 0.0
-        self._roll_prop_var = 0.0
-        self._ahead: list[tuple] = []
         self.counts = dict(imu=0, vision_used=0, vision_rejected=0, vision_invalid=0, vision_late=0,
                            vision_too_old=0, vision_reacquired=0, gravity_rejected=0, speed_rejected=0,
-                           speed_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0, roll_ahead_dropped=0)
+                           speed_reacquired=0)
 
     # ---- inputs ----
 
@@ -173,7 +150,7 @@ class FusionStream:
     def add_vision(self, t_s: float, angles_rad, sigmas_rad, valid: bool = True,
                    curvature_1_m: float = math.nan, lateral_offset_m: float = math.nan,
                    curvature_sigma_1_m: float = math.nan, lookahead_m: float = 0.0,
-                   twist_m: tuple[float, float] = (0.0, 0.0), lines_span_m: float = math.nan) -> None:
+                   twist_m: tuple[float, float] = (0.0, 0.0)) -> None:
         """A vision result: roll, pitch, yaw relative to the road at capture time ``t_s``
         (the other arguments: :class:`fusion.ekf.VisionMeasurement`)."""
         if not self.options.use_vision:
@@ -185,8 +162,7 @@ class FusionStream:
             return
         tw = tuple(float(g) if math.isfinite(g) else 0.0 for g in twist_m)
         item = VisionMeasurement(float(t_s), angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
-                                 float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw,
-                                 float(lines_span_m))
+                                 float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw)
         if not self._hist or item.t_s > self._hist[-1].t:
             self._pending.append(item)   # the IMU has not reached it yet
         else:
@@ -229,15 +205,12 @@ class FusionStream:
         if self._speed_initialized and s.index % self.options.gravity_every == 0:
             if not ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate):
                 self.counts["gravity_rejected"] += 1
-        if self._ahead:
-            self._apply_rolls_ahead(s.t)
         # At the sample's own time (or before the very first sample): after its IMU
         # measurements, in the same order as a late result would be applied.
         for v in visions:
             if prev is None or v.t_s >= s.t:
                 self._vision_update(v)
         s.x_post, s.P_post = ekf.x.copy(), ekf.P.copy()
-        s.aux = (self._odo, self._roll_prop, self._roll_prop_var, tuple(self._ahead))
         if self.record:
             if prev is None:
                 self.start = (s.x_post, s.P_post)
@@ -250,13 +223,7 @@ class FusionStream:
         offset, t_fit = self._lane_fit
         follow = t1 - t_fit > self.options.lane_fit_hold_s  # no lane fit: the road turns with the vehicle
         u = ImuStep(t1 - t0, gyro, follow, offset)
-        roll0, v0 = self.ekf.x[S.ROLL_W], self.ekf.x[S.SPEED]
         self.ekf.propagate(u)
-        if self.options.roll_at_lookahead_point:
-            x = self.ekf.x
-            self._odo += 0.5 * (v0 + x[S.SPEED]) * u.dt_s
-            self._roll_prop += math.remainder(x[S.ROLL_W] - roll0, 2 * math.pi)
-            self._roll_prop_var += self.options.noise.gyro_noise_rad_s**2 * u.dt_s**2
         self._road_rate = self.ekf.road_turn_rate(u)
         if self.record:
             ekf = self.ekf
@@ -289,8 +256,7 @@ class FusionStream:
             if math.isfinite(kappa):
                 ekf.x[S.CURVATURE] = kappa
             self._vision_initialized = True
-        defer = self._hold_roll(m)
-        if ekf.update_vision(m, defer_roll=defer):
+        if ekf.update_vision(m):
             self.counts["vision_used"] += 1
             self._last_vision_t = t
             self._rejected_in_row = 0
@@ -306,47 +272,6 @@ class FusionStream:
                 self._rejected_in_row = 0
         if self.record and self.steps:
             self.steps[-1].x_post, self.steps[-1].P_post = ekf.x.copy(), ekf.P.copy()
-
-    def _hold_roll(self, m: VisionMeasurement) -> bool:
-        """Keep the roll of ``m`` until the vehicle reaches the look-ahead point
-        (:attr:`FusionOptions.roll_at_lookahead_point`); False when it is to be used at once."""
-        o, ekf = self.options, self.ekf
-        v, L = ekf.x[S.SPEED], m.roll_lookahead_m
-        if not (o.roll_at_lookahead_point and v > 1.0 and L > 0.0 and L / v < o.roll_ahead_max_age_s):
-            return False
-        n = o.noise
-        var = max(m.sigmas_rad[0] * n.vision_sigma_scale, n.vision_sigma_floor_rad) ** 2
-        self._ahead.append((self._odo + L, m.t_s, float(m.angles_rad[0]), var, self._roll_prop,
-                            self._roll_prop_var, ekf.x[S.BANK]))
-        return True
-
-    def _apply_rolls_ahead(self, t: float) -> None:
-        """Held vision rolls whose look-ahead point the vehicle has reached (:meth:`_hold_roll`).
-
-        The roll was relative to the road there: with the world roll propagated since the frame
-        added (gyro alone, the filter's bias), it is the roll relative to the road under the
-        wheels now. Its variance: the vision's, the propagated roll's (gyro noise, and the roll
-        gyro's bias uncertainty times the time held), and ``vision_road_model_error`` times the
-        bank change over the look-ahead (the roll is a least-squares over cross-sections whose
-        mean distance is ``roll_lookahead_m``; it is not a single distance)."""
-        ekf, n = self.ekf, self.options.noise
-        keep = []
-        for item in self._ahead:
-            due, t0, roll, var, roll_prop0, var_prop0, bank0 = item
-            if t - t0 > self.options.roll_ahead_max_age_s:
-                self.counts["roll_ahead_dropped"] += 1
-                continue
-            if due > self._odo:
-                keep.append(item)
-                continue
-            dt = t - t0
-            r2 = (var + (self._roll_prop_var - var_prop0) + ekf.P[S.GYRO_BIAS_X, S.GYRO_BIAS_X] * dt * dt
-                  + (n.vision_road_model_error * (ekf.x[S.BANK] - bank0)) ** 2)
-            if ekf.update_roll_ahead(roll + (self._roll_prop - roll_prop0), r2):
-                self.counts["roll_ahead_used"] += 1
-            else:
-                self.counts["roll_ahead_rejected"] += 1
-        self._ahead = keep
 
     def _reacquire(self, angles, kappa: float = math.nan) -> None:
         """Reset the road states to agree with ``angles`` and reopen their covariance."""
@@ -397,13 +322,9 @@ class FusionStream:
         if replay and self.record:
             raise ValueError("late vision result with record=True: feed inputs in time order")
         self.ekf.x, self.ekf.P = base.x_post.copy(), base.P_post.copy()
-        if base.aux is not None:
-            self._odo, self._roll_prop, self._roll_prop_var, ahead = base.aux
-            self._ahead = list(ahead)
         if not replay:  # exactly at the newest sample's time
             self._vision_update(item)
             base.x_post, base.P_post = self.ekf.x.copy(), self.ekf.P.copy()
-            base.aux = (self._odo, self._roll_prop, self._roll_prop_var, tuple(self._ahead))
             return
         prev = base
         for i, s in enumerate(replay):

@@ -112,10 +112,6 @@ def vision_inputs(vision: pd.DataFrame) -> pd.DataFrame:
     for c in ("pitch_per_twist_m", "yaw_per_twist_m"):
         if c not in v.columns:
             v[c] = 0.0
-    if "line_spacing_m" in v.columns and "n_lines" in v.columns:
-        v["lines_span_m"] = v["line_spacing_m"] * (v["n_lines"] - 1)
-    else:
-        v["lines_span_m"] = np.nan
     return v
 
 
@@ -167,7 +163,6 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         vla = v["roll_lookahead_m"].to_numpy(dtype=float)
         vtw = v[["pitch_per_twist_m", "yaw_per_twist_m"]].to_numpy(dtype=float)
         vd = v["lateral_offset_m"].to_numpy(dtype=float)
-        vspan = v["lines_span_m"].to_numpy(dtype=float)
     else:
         vt = np.zeros(0)
     X = np.empty((len(t), stream.ekf.dim_x))
@@ -175,7 +170,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     j = 0
     for k in tqdm(range(len(t)), desc="fuse", unit="sample", disable=not progress, mininterval=0.5):
         while j < len(vt) and vt[j] <= t[k]:
-            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j], vspan[j])
+            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j])
             j += 1
         stream.add_imu(t[k], gyro[k], accel[k], speed[k], bool(fresh[k]))
         X[k], Pm[k] = stream.ekf.x, stream.ekf.P
