@@ -245,7 +245,7 @@ def _frames_from(src: FrameSource, start: int, luma: bool = False) -> Iterator[t
 #: Planar YUV formats whose first plane is the luma, and those of them stored in full range.
 _YUV_PLANAR = {"yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p", "gray"}
 _FULL_RANGE = {"yuvj420p", "yuvj422p", "yuvj444p", "gray"}
-#: Video-range luma (16-235) to full-range grey, as OpenCV's BGR decode and BGR2GRAY give it.
+#: Video-range luma (16-235) expanded to full-range grey (0-255), BT.601.
 _LUMA_TO_GREY = np.clip(np.round((np.arange(256) - 16.0) * 255.0 / 219.0), 0, 255).astype(np.uint8)
 
 
