@@ -455,9 +455,7 @@ def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     g = GRAVITY_M_S2
     phi, theta, v, a = x[0], x[1], x[8], x[9]
     sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
-    p, q, r = gyro[0] - x[5], gyro[1] - x[6], gyro[2] - x[7]
-    if not has_q:
-        q = r * math.tan(phi)
+    p, q, r = _body_rates(x, gyro, has_q)
     # attitude relative to the road and the road frame's rotation, in o
     A = R_from_rpy_scalar(x[3], x[4], 0.0)          # R_g'_from_o
     R = A.T @ R_from_rpy_scalar(phi, theta, x[2])   # R_o_from_v

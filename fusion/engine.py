@@ -291,22 +291,19 @@ class FusionStream:
         information backwards across the reset (otherwise the jump of the reset is read as a
         measurement and smeared over the seconds before it).
         """
-        ekf = self.ekf
-        idx = [i for i, _, _ in states]
-        for i, value, sig in states:
-            ekf.x[i] = value
-            ekf.P[i, :] = 0.0
-            ekf.P[:, i] = 0.0
-            ekf.P[i, i] = sig**2
+        def reset(x, P):
+            for i, value, sig in states:
+                x[i] = value
+                P[i, :] = 0.0
+                P[:, i] = 0.0
+                P[i, i] = sig**2
+
+        reset(self.ekf.x, self.ekf.P)
         if self.record and self.steps:
             st = self.steps[-1]
             st.x_prior, st.P_prior, st.F = st.x_prior.copy(), st.P_prior.copy(), st.F.copy()
-            st.F[idx, :] = 0.0
-            for i, value, sig in states:
-                st.x_prior[i] = value
-                st.P_prior[i, :] = 0.0
-                st.P_prior[:, i] = 0.0
-                st.P_prior[i, i] = sig**2
+            reset(st.x_prior, st.P_prior)
+            st.F[[i for i, _, _ in states], :] = 0.0
 
     def _apply_late(self, item: VisionMeasurement) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it

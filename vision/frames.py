@@ -57,17 +57,16 @@ R_CS_FROM_CP = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 R_CS_FROM_CP.setflags(write=False)
 
 
+#: The (i, j) planes of :func:`Rx`, :func:`Ry`, :func:`Rz`, and those of each Euler order's factors.
+_PLANE = {"x": (1, 2), "y": (2, 0), "z": (0, 1)}
+_EULER_PLANES = {order: tuple(k for axis in order for k in _PLANE[axis]) for order in ("zyx", "xyz", "yxz")}
+
+
 def _rot(angle_rad, i: int, j: int) -> np.ndarray:
     """Rotation by ``angle_rad`` in the (i, j) plane, i.e. about the remaining axis."""
     if isinstance(angle_rad, (float, int)) and not isinstance(angle_rad, bool):
         # Scalar fast path (the estimator builds many single matrices per frame): same result.
-        c, s = math.cos(angle_rad), math.sin(angle_rad)
-        R = np.eye(3)
-        R[i, i] = c
-        R[j, j] = c
-        R[i, j] = -s
-        R[j, i] = s
-        return R
+        return _rot_scalar(float(angle_rad), i, j)
     a = np.asarray(angle_rad, dtype=float)
     c, s = np.cos(a), np.sin(a)
     R = np.zeros(a.shape + (3, 3))
@@ -80,19 +79,31 @@ def _rot(angle_rad, i: int, j: int) -> np.ndarray:
     return R
 
 
+@nb.njit(cache=True)
+def _rot_scalar(angle: float, i: int, j: int) -> np.ndarray:
+    """:func:`_rot` of one angle, compiled (the filter's and the estimator's kernels call it)."""
+    c, s = math.cos(angle), math.sin(angle)
+    R = np.eye(3)
+    R[i, i] = c
+    R[j, j] = c
+    R[i, j] = -s
+    R[j, i] = s
+    return R
+
+
 def Rx(angle_rad) -> np.ndarray:
     """Right-handed rotation about x: ``[[1,0,0],[0,c,-s],[0,s,c]]``."""
-    return _rot(angle_rad, 1, 2)
+    return _rot(angle_rad, *_PLANE["x"])
 
 
 def Ry(angle_rad) -> np.ndarray:
     """Right-handed rotation about y: ``[[c,0,s],[0,1,0],[-s,0,c]]``."""
-    return _rot(angle_rad, 2, 0)
+    return _rot(angle_rad, *_PLANE["y"])
 
 
 def Rz(angle_rad) -> np.ndarray:
     """Right-handed rotation about z: ``[[c,-s,0],[s,c,0],[0,0,1]]``."""
-    return _rot(angle_rad, 0, 1)
+    return _rot(angle_rad, *_PLANE["z"])
 
 
 _AXIS = {"x": Rx, "y": Ry, "z": Rz}
@@ -123,34 +134,15 @@ def matrix_from_euler(order: str, a, b, c) -> np.ndarray:
     """
     _check_order(order)
     if isinstance(a, float) and isinstance(b, float) and isinstance(c, float):
-        return _euler_scalar(_ORDER_CODE[order], a, b, c)   # the estimator builds ~10 a frame
+        return _euler_scalar(a, b, c, _EULER_PLANES[order])   # the estimator builds ~10 a frame
     return _AXIS[order[0]](a) @ _AXIS[order[1]](b) @ _AXIS[order[2]](c)
 
 
-_ORDER_CODE = {"zyx": 0, "xyz": 1, "yxz": 2}
-
-
 @nb.njit(cache=True)
-def _axis_scalar(axis: int, angle: float) -> np.ndarray:
-    """:func:`Rx` (0), :func:`Ry` (1) or :func:`Rz` (2) of one angle, compiled."""
-    c, s = math.cos(angle), math.sin(angle)
-    R = np.eye(3)
-    i, j = (1, 2) if axis == 0 else ((2, 0) if axis == 1 else (0, 1))
-    R[i, i] = c
-    R[j, j] = c
-    R[i, j] = -s
-    R[j, i] = s
-    return R
-
-
-@nb.njit(cache=True)
-def _euler_scalar(code: int, a: float, b: float, c: float) -> np.ndarray:
-    """:func:`matrix_from_euler` of three floats; ``code`` as in ``_ORDER_CODE``."""
-    if code == 0:
-        return _axis_scalar(2, a) @ _axis_scalar(1, b) @ _axis_scalar(0, c)
-    if code == 1:
-        return _axis_scalar(0, a) @ _axis_scalar(1, b) @ _axis_scalar(2, c)
-    return _axis_scalar(1, a) @ _axis_scalar(0, b) @ _axis_scalar(2, c)
+def _euler_scalar(a: float, b: float, c: float, planes) -> np.ndarray:
+    """:func:`matrix_from_euler` of three floats; ``planes``: the factors' (i, j) planes."""
+    return (_rot_scalar(a, planes[0], planes[1]) @ _rot_scalar(b, planes[2], planes[3])
+            @ _rot_scalar(c, planes[4], planes[5]))
 
 
 def euler_from_matrix(order: str, R) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -212,19 +212,15 @@ class LaneModel:
         K, J, nc = self.n_edges, self.n_lines, self.c.size
         w = 1.0 / len(ks)
         R = np.zeros((x.size, self.cov.shape[0]))
-        t = x / _XS
-        powers = [t ** (i + 2) for i in range(nc)]
-        shape = sum(ci * tp for ci, tp in zip(self.c, powers)) if nc else 0.0
-        y = np.zeros_like(x)
+        powers = [(x / _XS) ** (i + 2) for i in range(nc)]
         for k in ks:
             j = self.edge_line[k]
             s = self.line_scale[j]
-            y += w * (self.a[k] + self.b[j] * x + s * shape)
             R[:, k] += w
             R[:, K + j] += w * x
             for i in range(nc):
                 R[:, K + J + i] += w * s * powers[i]
-        return y, R
+        return self.y_edges(ks, x).mean(axis=0), R
 
     def slope_row(self, j: int, x: float) -> np.ndarray:
         """Derivatives of ``slope(j, x)`` with respect to the parameters."""

@@ -128,6 +128,10 @@ def solve_numeric(alphas_rad, coef, seed_rad: float = 0.0, *, span_rad: float = 
     return phi
 
 
+#: Brent's relative tolerance, as SciPy's ``brentq`` defaults it.
+_RTOL = 4.0 * float(np.finfo(float).eps)
+
+
 @nb.njit(cache=True)
 def _width_f(a, c, phi):  # pragma: no cover (numba)
     """``sum_k c_k sum_rows tan(a[row, k] - phi)``."""
@@ -153,9 +157,9 @@ def _bracket_and_solve(a, c, seed, span, lo_dom, hi_dom, xtol):  # pragma: no co
         left = np.sign(flo) != np.sign(f0)
         right = np.sign(fhi) != np.sign(f0)
         if left and (not right or seed - lo <= hi - seed):
-            return True, _brentq(a, c, lo, seed, xtol, 4.0 * 2.220446049250313e-16, 200)
+            return True, _brentq(a, c, lo, seed, xtol, _RTOL, 200)
         if right:
-            return True, _brentq(a, c, seed, hi, xtol, 4.0 * 2.220446049250313e-16, 200)
+            return True, _brentq(a, c, seed, hi, xtol, _RTOL, 200)
         if lo <= lo_dom and hi >= hi_dom:
             return False, math.nan
         span *= 2.0
