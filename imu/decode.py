@@ -123,17 +123,36 @@ def physical(data: np.ndarray, sig: Any) -> np.ndarray:
                 value = raw.astype(np.uint32).view(np.float32).astype(np.float64)
             else:
                 value = raw.astype(np.uint16).view(np.float16).astype(np.float64)
-    elif sig.is_signed:
-        if length == 64:
-            value = raw.view(np.int64).astype(np.float64)
+    else:
+        if not sig.is_signed:
+            ival = raw
+        elif length == 64:
+            ival = raw.view(np.int64)
         else:
             negative = (raw >> _U64(length - 1)) & _U64(1)
-            value = raw.astype(np.int64) - (negative.astype(np.int64) << np.int64(length))
-            value = value.astype(np.float64)
-    else:
-        value = raw.astype(np.float64)
+            ival = raw.astype(np.int64) - (negative.astype(np.int64) << np.int64(length))
+        value = ival.astype(np.float64)
+        if _integer_conversion(sig):
+            out = value * float(sig.conversion.scale) + float(sig.conversion.offset)
+            # cantools keeps an exact Python int here: beyond 2^53 the float arithmetic would
+            # round twice (the raw value, then the sum), so those rows are computed exactly
+            big = np.flatnonzero(np.abs(out) >= _EXACT_LIMIT)
+            for i in big:
+                out[i] = float(int(ival[i]) * sig.conversion.scale + sig.conversion.offset)
+            return out
     conv = sig.conversion
     return value * float(conv.scale) + float(conv.offset)
+
+
+#: Below this magnitude raw * scale + offset is exact in float64 for integer scale and offset
+#: (with a margin for the rounding of the estimate that decides it).
+_EXACT_LIMIT = 2.0**53 * (1.0 - 2.0**-10)
+
+
+def _integer_conversion(sig: Any) -> bool:
+    """Scale and offset both integers: cantools then returns exact integers."""
+    conv = sig.conversion
+    return all(isinstance(v, int) and not isinstance(v, bool) for v in (conv.scale, conv.offset))
 
 
 def mux_present(data: np.ndarray, mux: Sequence[MuxCondition]) -> np.ndarray:
@@ -227,10 +246,11 @@ def physical_scalar(payload: bytes, sig: Any) -> float:
     if sig.is_float:
         fmt = {16: ">e", 32: ">f", 64: ">d"}[length]
         value = struct.unpack(fmt, raw.to_bytes(length // 8, "big"))[0]
-    elif sig.is_signed and raw >> (length - 1):
-        value = float(raw - (1 << length))
     else:
-        value = float(raw)
+        ival = raw - (1 << length) if sig.is_signed and raw >> (length - 1) else raw
+        if _integer_conversion(sig):   # exact, then rounded once, as cantools
+            return float(ival * sig.conversion.scale + sig.conversion.offset)
+        value = float(ival)
     conv = sig.conversion
     return value * float(conv.scale) + float(conv.offset)
 

@@ -176,3 +176,17 @@ def test_scalar_twin_equals_numpy_on_variants(tmp_path):
             if present:
                 assert valid == list(vec.valid[i]) and oor == [int(x) for x in vec.out_of_range[i]]
                 np.testing.assert_array_equal(np.array(si), vec.si[i])
+
+
+def test_integers_beyond_2_53_are_rounded_once_as_cantools():
+    """Integer scale and offset: cantools keeps an exact Python int. A raw value of 2^53 + 1
+    minus 125 is 9007199254740868 exactly; rounding the raw value to a double first would give
+    ...867 (found by the property test above on a fresh clone)."""
+    sig = Signal("S", 0, 64, "little_endian", False,
+                 conversion=BaseConversion.factory(scale=1, offset=-125, choices=None, is_float=False))
+    msg = Message(0x123, "M", 8, [sig], strict=True)
+    payload = (2**53 + 1).to_bytes(8, "little")
+    want = msg.decode(payload, decode_choices=False)["S"]
+    assert want == 2**53 + 1 - 125
+    data = np.frombuffer(payload, dtype=np.uint8).reshape(1, 8)
+    assert physical(data, sig)[0] == float(want) == physical_scalar(payload, sig) == 9007199254740868.0
