@@ -51,6 +51,7 @@ from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
 import cv2
+import numba as nb
 import numpy as np
 
 from .camera import Camera, Mount, RoadMarkings
@@ -58,7 +59,7 @@ from .errors import VisionError
 from .frames import R_CS_FROM_CP, R_from_rpy, Ry, euler_from_matrix, matrix_from_euler, roll_xyz_from_zyx, rpy_from_R
 from .edges import measure_in_image
 from .ipm import Bev, BevGrid, default_grid, ground_from_rays, undistortion_lookup
-from .lanemodel import LaneModel, fit_lane_model, lane_direction
+from .lanemodel import LaneModel, fit_lane_model_points, lane_direction
 from .lanes import LaneOptions, Marker, detect_markers
 from .options import EstimatorOptions
 from .roll import (coefficients_eq8, coefficients_eq10, roll_bound_eq14, solve_numeric, solve_pade)
@@ -820,23 +821,16 @@ class Estimator:
             # Metres of lateral position per pixel along each cut (the measurement's direction).
             _, y2 = ground_from_rays(rays + steps, R, H, z, x0)
             q_all = np.abs(y2 - y)
-        xs, ys, qs = [], [], []
-        for k in range(len(edges)):
-            sl = slice(bounds[k], bounds[k + 1])
-            xk, yk = x[sl], y[sl]
-            ok = np.isfinite(xk) & (xk > 0.5) & (xk < self.options.fit_range_m)
-            if ok.sum() < 3:
-                raise VisionError("an edge lies above the horizon at this pose")
-            xs.append(xk[ok])
-            ys.append(yk[ok])
-            if from_image:
-                qs.append(q_all[sl][ok])
+        ok = (x > 0.5) & (x < self.options.fit_range_m)       # False for NaN (above the horizon)
+        counts = np.add.reduceat(ok, bounds[:-1])
+        if counts.min() < 3:
+            raise VisionError("an edge lies above the horizon at this pose")
         # BEV rows far away re-sample image rows (f_y H / x^2 rows per metre against 1 / dx);
         # cuts in the image are one per image row or column.
         independent = math.inf if from_image else self.camera.fy * H * grid.dx_m
-        model = fit_lane_model(xs, ys, [e.line for e in edges], [e.side for e in edges], deg, independent,
-                               qs=qs if from_image else None, select=select,
-                               sag=None if zeta is None else (H, x0, z))
+        model = fit_lane_model_points(x[ok], y[ok], counts, [e.line for e in edges], [e.side for e in edges], deg,
+                                      independent, q=q_all[ok] if from_image else None, select=select,
+                                      sag=None if zeta is None else (H, x0, z))
         if zeta is not None:
             model = model.with_dzeta_prior(zeta_prior[0] - z, zeta_prior[1])
             t = self.options.vertical_curvature_t_min
@@ -996,16 +990,23 @@ def _vehicle_sigmas(phi, theta, psi, cov_cam, tilt):
     return tuple(float(math.sqrt(max(cov[i, i], 0.0))) for i in range(3))
 
 
-def _yaw_pitch_two_lines(D, H, x0, R_o_from_cp):
-    """``(psi1, theta1)`` rows for rows ``(y_L, b_L, y_R, b_R)`` of ``D``: :func:`lane_direction`
-    of two lines, vectorised (for the covariance)."""
-    D = np.atleast_2d(D)
-    n1 = np.stack([H * D[:, 1], np.full(len(D), -H), x0 * D[:, 1] - D[:, 0]], -1)
-    n2 = np.stack([H * D[:, 3], np.full(len(D), -H), x0 * D[:, 3] - D[:, 2]], -1)
-    d = np.cross(n1, n2)
-    d *= np.where(d[:, :1] < 0, -1.0, 1.0) / np.linalg.norm(d, axis=1, keepdims=True)
-    r = d @ np.asarray(R_o_from_cp)                      # R^T d, row-wise
-    return np.stack([np.arctan2(r[:, 0], r[:, 2]), -np.arcsin(np.clip(r[:, 1], -1.0, 1.0))], -1)
+@nb.njit(cache=True)
+def _yaw_pitch_two_lines(D, H, x0, R_o_from_cp):  # pragma: no cover (numba)
+    """``(psi1, theta1)`` rows for rows ``(y_L, b_L, y_R, b_R)`` of ``D`` (n, 4): :func:`lane_direction`
+    of two lines, for each row (for the covariance). Compiled: it runs once a frame."""
+    out = np.empty((D.shape[0], 2))
+    for i in range(D.shape[0]):
+        a0, a1, a2 = H * D[i, 1], -H, x0 * D[i, 1] - D[i, 0]
+        b0, b1, b2 = H * D[i, 3], -H, x0 * D[i, 3] - D[i, 2]
+        d0, d1, d2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        s = (-1.0 if d0 < 0 else 1.0) / math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        d0, d1, d2 = d0 * s, d1 * s, d2 * s
+        r0 = d0 * R_o_from_cp[0, 0] + d1 * R_o_from_cp[1, 0] + d2 * R_o_from_cp[2, 0]    # R^T d
+        r1 = d0 * R_o_from_cp[0, 1] + d1 * R_o_from_cp[1, 1] + d2 * R_o_from_cp[2, 1]
+        r2 = d0 * R_o_from_cp[0, 2] + d1 * R_o_from_cp[1, 2] + d2 * R_o_from_cp[2, 2]
+        out[i, 0] = math.atan2(r0, r2)
+        out[i, 1] = -math.asin(min(1.0, max(-1.0, r1)))
+    return out
 
 
 def _heights(xs, H: float, x0: float, zeta: float) -> np.ndarray:

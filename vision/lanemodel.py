@@ -49,14 +49,14 @@ linearisation only has to point the right way.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
 from .errors import VisionError
 
-__all__ = ["LaneModel", "fit_lane_model", "lane_direction"]
+__all__ = ["LaneModel", "fit_lane_model", "fit_lane_model_points", "lane_direction"]
 
 _XS = 10.0  # m, scale of x in the shape columns (conditioning)
 
@@ -117,7 +117,10 @@ class LaneModel:
         p = p + g * (dzeta_1_m - self.dzeta)
         cov = self.cov - np.outer(g, Ce)
         K, J, nc = self.a.size, self.b.size, self.c.size
-        return replace(self, a=p[:K], b=p[K:K + J], c=p[K + J:K + J + nc], dzeta=float(p[i]), cov=cov)
+        out = object.__new__(LaneModel)          # a copy with new parameters (no __init__: 1670 a second)
+        out.__dict__.update(self.__dict__)
+        out.a, out.b, out.c, out.dzeta, out.cov = p[:K], p[K:K + J], p[K + J:K + J + nc], float(p[i]), cov
+        return out
 
     def zeta_column(self, k: int, x) -> np.ndarray:
         """``u^2 / (2 D) (y_k - x y_k')`` at ``x``: the change of the projected ``y`` of edge ``k``
@@ -207,20 +210,9 @@ class LaneModel:
     def mean_y_and_rows(self, ks, x) -> tuple[np.ndarray, np.ndarray]:
         """Mean of :meth:`y` and of :meth:`_row` over edges ``ks`` at ``x`` (a cross-section's
         line centre, or one edge), in one pass."""
-        x = np.atleast_1d(np.asarray(x, float))
-        ks = tuple(ks)
-        K, J, nc = self.n_edges, self.n_lines, self.c.size
-        w = 1.0 / len(ks)
-        R = np.zeros((x.size, self.cov.shape[0]))
-        powers = [(x / _XS) ** (i + 2) for i in range(nc)]
-        for k in ks:
-            j = self.edge_line[k]
-            s = self.line_scale[j]
-            R[:, k] += w
-            R[:, K + j] += w * x
-            for i in range(nc):
-                R[:, K + J + i] += w * s * powers[i]
-        return self.y_edges(ks, x).mean(axis=0), R
+        return _mean_y_and_rows(self.a, self.b, self.c, self.line_scale, self.edge_line,
+                                np.asarray(ks, np.int64).reshape(-1), np.atleast_1d(np.asarray(x, float)),
+                                self.cov.shape[0])
 
     def slope_row(self, j: int, x: float) -> np.ndarray:
         """Derivatives of ``slope(j, x)`` with respect to the parameters."""
@@ -256,6 +248,48 @@ class LaneModel:
         return float(np.sqrt(max(self.cov[i, i], 0.0)))
 
 
+@nb.njit(cache=True)
+def _mean_y_and_rows(a, b, c, line_scale, edge_line, ks, x, P):  # pragma: no cover (numba)
+    """:meth:`LaneModel.mean_y_and_rows` (compiled: it runs for every cross-section)."""
+    K, J, nc = a.size, b.size, c.size
+    w = 1.0 / ks.size
+    y = np.zeros(x.size)
+    R = np.zeros((x.size, P))
+    for k in ks:
+        j = edge_line[k]
+        s = line_scale[j]
+        for r in range(x.size):
+            t = x[r] / _XS
+            tp = t * t
+            shape = 0.0
+            R[r, k] += w
+            R[r, K + j] += w * x[r]
+            for i in range(nc):
+                shape += c[i] * tp
+                R[r, K + J + i] += w * s * tp
+                tp *= t
+            y[r] += w * (a[k] + b[j] * x[r] + s * shape)
+    return y, R
+
+
+@nb.njit(cache=True)
+def _line_at(a, b, c, line_scale, edge_line, j, x):  # pragma: no cover (numba)
+    """Line ``j``'s mean lateral position over its edges and its slope at ``x``."""
+    t = x / _XS
+    shape, dshape, tp = 0.0, 0.0, t
+    for i in range(c.size):
+        dshape += c[i] * (i + 2) * tp / _XS
+        tp *= t
+        shape += c[i] * tp
+    s = line_scale[j]
+    y, n = 0.0, 0
+    for k in range(a.size):
+        if edge_line[k] == j:
+            y += a[k]
+            n += 1
+    return y / n + b[j] * x + s * shape, b[j] + s * dshape
+
+
 def sag_weight(x, height_m: float, x0_m: float, zeta_1_m: float):
     """``u^2 / (2 D)``, ``u = x - x0``, ``D = H - zeta u^2 / 2 + zeta u x`` (module docstring)."""
     u = np.asarray(x, float) - x0_m
@@ -277,28 +311,6 @@ def fit_lane_model(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_s
     ``sag = (H, x0, zeta)``: the points were projected onto the surface of vertical curvature
     ``zeta`` (:func:`vision.ipm.ground_from_rays`); the fit adds the column of ``dzeta`` (module
     docstring). It is kept whatever the shape selected.
-    """
-    zw = None
-    if sag is not None:
-        zw = [sag_weight(xi, *sag) for xi in xs]
-    m = _fit(xs, ys, edge_line, edge_side, shape_degree, rows_per_m, qs, zw, sag)
-    if not select or m.c.size == 0:
-        return m
-    full = m
-    while m.c.size >= 1:
-        i = m.a.size + m.b.size + m.c.size - 1
-        if abs(m.c[-1]) > t_min * np.sqrt(max(m.cov[i, i], 0.0)):
-            break
-        m = _fit(xs, ys, edge_line, edge_side, m.c.size, rows_per_m, qs, zw, sag)
-    # A curve keeps its full shape: the rate of change of curvature (clothoid) is rarely
-    # significant on its own, but leaving it out biases the tangent at the vehicle.
-    return full if m.c.size >= 1 else m
-
-
-def _fit(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape_degree: int,
-         rows_per_m: float, qs: list[np.ndarray] | None = None, zw: list[np.ndarray] | None = None,
-         sag: tuple | None = None) -> LaneModel:
-    """Weighted least squares of the joint model (module docstring).
 
     Parameters
     ----------
@@ -315,31 +327,72 @@ def _fit(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape
         Per point, the metres of lateral position per unit of measurement error (for cuts in the
         image, metres per pixel along the cut); the noise model is ``s_b^2 + s_i^2 q^2``.
         Default ``q = x``.
-    zw, sag : optional
-        Per point, ``u^2 / (2 D)`` of the vertical-curvature column (:func:`sag_weight`), and the
-        projection's ``(H, x0, zeta)``; None: no column.
     """
-    K = len(xs)
-    edge_line = np.asarray(edge_line, np.int64)
-    J = int(edge_line.max()) + 1
-    nc = max(0, shape_degree - 1)
-    x = np.concatenate(xs).astype(np.float64)
-    y = np.concatenate(ys).astype(np.float64)
-    nz = 0 if zw is None else 1
-    if x.size < K + J + nc + nz + 2:
-        raise VisionError("too few edge points for the lane model")
     counts = np.array([len(xi) for xi in xs], np.int64)
-    k_of = np.repeat(np.arange(K, dtype=np.int64), counts)
-    q = x if qs is None else np.concatenate(qs).astype(np.float64)
-    z = np.concatenate(zw).astype(np.float64) if zw is not None else np.zeros(0)
-    ok, p, cov, s2, scale = _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, float(min(rows_per_m, 1e300)))
+    return fit_lane_model_points(np.concatenate(xs), np.concatenate(ys), counts, edge_line, edge_side, shape_degree,
+                                 rows_per_m, select=select, t_min=t_min,
+                                 q=None if qs is None else np.concatenate(qs), sag=sag)
+
+
+def fit_lane_model_points(x: np.ndarray, y: np.ndarray, counts: np.ndarray, edge_line, edge_side,
+                          shape_degree: int, rows_per_m: float, *, select: bool = True, t_min: float = 3.0,
+                          q: np.ndarray | None = None, sag: tuple[float, float, float] | None = None) -> LaneModel:
+    """:func:`fit_lane_model` of the points of all edges in one array, edge after edge
+    (``counts[k]`` points of edge ``k``)."""
+    pts = _Points(x, y, counts, edge_line, edge_side, q, sag)
+    m = _fit(pts, shape_degree, rows_per_m)
+    if not select or m.c.size == 0:
+        return m
+    full = m
+    while m.c.size >= 1:
+        i = m.a.size + m.b.size + m.c.size - 1
+        if abs(m.c[-1]) > t_min * np.sqrt(max(m.cov[i, i], 0.0)):
+            break
+        m = _fit(pts, m.c.size, rows_per_m)
+    # A curve keeps its full shape: the rate of change of curvature (clothoid) is rarely
+    # significant on its own, but leaving it out biases the tangent at the vehicle.
+    return full if m.c.size >= 1 else m
+
+
+class _Points:
+    """The fit's data, prepared once for the fits of several shape degrees: coordinates,
+    edge of each point, noise scale ``q`` (default ``x``), the vertical-curvature column's weight
+    ``u^2 / (2 D)`` (:func:`sag_weight`) when ``sag = (H, x0, zeta)``, each edge's range."""
+
+    def __init__(self, x, y, counts, edge_line, edge_side, q, sag) -> None:
+        self.x = np.ascontiguousarray(x, np.float64)
+        self.y = np.ascontiguousarray(y, np.float64)
+        counts = np.asarray(counts, np.int64)
+        self.K = counts.size
+        self.edge_line = np.asarray(edge_line, np.int64)
+        self.edge_side = np.asarray(edge_side, int)
+        self.J = int(self.edge_line.max()) + 1
+        if counts.min() < 1:
+            raise VisionError("lane model is singular (an edge without points)")
+        self.k_of = np.repeat(np.arange(self.K, dtype=np.int64), counts)
+        self.q = self.x if q is None else np.ascontiguousarray(q, np.float64)
+        self.sag = None if sag is None else tuple(float(v) for v in sag)
+        self.z = sag_weight(self.x, *self.sag) if sag is not None else np.zeros(0)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        self.x_min = np.minimum.reduceat(self.x, starts)
+        self.x_max = np.maximum.reduceat(self.x, starts)
+
+
+def _fit(pts: _Points, shape_degree: int, rows_per_m: float) -> LaneModel:
+    """Weighted least squares of the joint model (module docstring) of degree ``shape_degree``
+    (highest power of the common shape: 1 straight lines, 2 + x^2, 3 + x^3)."""
+    K, J = pts.K, pts.J
+    nc = max(0, shape_degree - 1)
+    nz = 0 if pts.sag is None else 1
+    if pts.x.size < K + J + nc + nz + 2:
+        raise VisionError("too few edge points for the lane model")
+    ok, p, cov, s2, scale = _fit_core(pts.x, pts.y, pts.q, pts.z, pts.k_of, pts.edge_line, K, J, nc, nz,
+                                      float(min(rows_per_m, 1e300)))
     if not ok:
         raise VisionError("lane model is singular (an edge without points?)")
-    x_min = np.array([float(xi.min()) for xi in xs])
-    x_max = np.array([float(xi.max()) for xi in xs])
-    return LaneModel(p[:K], p[K:K + J], p[K + J:K + J + nc], cov, edge_line, np.asarray(edge_side, int), x_min,
-                     x_max, float(np.sqrt(s2)), int(x.size), scale,
-                     float(p[K + J + nc]) if nz else 0.0, tuple(float(v) for v in sag) if nz else None)
+    return LaneModel(p[:K], p[K:K + J], p[K + J:K + J + nc], cov, pts.edge_line, pts.edge_side, pts.x_min.copy(),
+                     pts.x_max.copy(), float(np.sqrt(s2)), int(pts.x.size), scale,
+                     float(p[K + J + nc]) if nz else 0.0, pts.sag)
 
 
 @nb.njit(cache=True)
@@ -556,18 +609,18 @@ def lane_direction(model: LaneModel, height_m: float, lines=None, x0_m: float = 
     J = model.n_lines
     lines = range(J) if lines is None else lines
     rows = []
+    x0_m = float(x0_m)
     for j in lines:
-        ks = np.flatnonzero(model.edge_line == j)
-        yj = float(model.y_edges(ks, np.array([float(x0_m)])).mean())
-        bj = float(model.slope(j, x0_m))
-        n = np.array([height_m * bj, -height_m, x0_m * bj - yj])
-        rows.append(n / (np.sqrt(n @ n) * max(model.sigma_b(j), 1e-9)))
+        yj, bj = _line_at(model.a, model.b, model.c, model.line_scale, model.edge_line, int(j), x0_m)
+        n = (height_m * bj, -height_m, x0_m * bj - yj)
+        w = 1.0 / (math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) * max(model.sigma_b(j), 1e-9))
+        rows.append((n[0] * w, n[1] * w, n[2] * w))
     if len(rows) < 2:
         return None
     if len(rows) == 2:
         a, b = rows
         d = np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-        nd = np.sqrt(d @ d)
+        nd = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         if nd == 0:
             return None
         d = d / nd

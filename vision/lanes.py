@@ -115,8 +115,23 @@ class Marker:
 
     def u_at(self, v) -> tuple[np.ndarray, np.ndarray]:
         """Fitted edge columns at rows ``v``."""
-        x = (np.asarray(v, float) - self.v0) * 0.01
-        return np.polyval(self.fit_left, x), np.polyval(self.fit_right, x)
+        x = (np.atleast_1d(np.asarray(v, float)) - self.v0) * 0.01
+        return _polyval2(self.fit_left, self.fit_right, x)
+
+
+@nb.njit(cache=True)
+def _polyval2(cl, cr, x):  # pragma: no cover (numba)
+    """Two polynomials (highest power first) at ``x``, Horner (numpy.polyval's overhead is
+    most of the cost for a few rows)."""
+    ul, ur = np.empty(x.size), np.empty(x.size)
+    for i in range(x.size):
+        a, b = 0.0, 0.0
+        for c in cl:
+            a = a * x[i] + c
+        for c in cr:
+            b = b * x[i] + c
+        ul[i], ur[i] = a, b
+    return ul, ur
 
 
 def marker_response(bev: np.ndarray, width_px: int) -> np.ndarray:
@@ -179,11 +194,22 @@ def _line_starts(binary: np.ndarray, min_count: int, min_gap_px: int) -> list[in
     cand = np.flatnonzero(hist >= min_count)
     if cand.size == 0:
         return []
-    starts: list[int] = []
-    for c in cand[np.argsort(hist[cand])[::-1]][:400]:
-        if all(abs(int(c) - s) >= min_gap_px for s in starts):
-            starts.append(int(c))
-    return sorted(starts)
+    return sorted(int(c) for c in _greedy_peaks(cand[np.argsort(hist[cand])[::-1]][:400], min_gap_px))
+
+
+@nb.njit(cache=True)
+def _greedy_peaks(ordered, min_gap):  # pragma: no cover (numba)
+    """The columns of ``ordered`` (strongest first) at least ``min_gap`` from every one kept."""
+    kept = np.empty(ordered.size, np.int64)
+    n = 0
+    for c in ordered:
+        for i in range(n):
+            if abs(c - kept[i]) < min_gap:
+                break
+        else:
+            kept[n] = c
+            n += 1
+    return kept[:n]
 
 
 def _track(binary: np.ndarray, start_col: int, opts_px: dict) -> tuple[np.ndarray, np.ndarray]:
