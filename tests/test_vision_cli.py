@@ -116,11 +116,14 @@ def test_frame_source_order_and_errors(tmp_path):
 def test_workers_share_a_video_like_one_process():
     """Two processes over the sample drive's mp4 (the second seeks to its piece and warms up on
     the 30 frames before it) give the single run's table: the same frames, the first piece
-    identical, and the same accuracy against truth (roll RMSE within 0.02 deg; measured 0.629
-    and 0.633). After the cut some rows depend on the seed chain (vision.video.WARM_UP_FRAMES):
-    on this 640x360 drive in a bank runoff a frame's roll moves with it by up to 0.69 deg
-    (measured with the grey from the luma plane; 0.06 and 0.34 deg through BGR at two cuts), so
-    single rows are allowed 1 deg."""
+    identical, and the same accuracy against truth (roll RMSE within 0.02 deg; measured 0.630
+    and 0.636). After the cut some rows depend on the seed chain (vision.video.WARM_UP_FRAMES):
+    on this 640x360 drive the dashed centre line is found on some frames and not on others, and
+    which ones depends on the BEV narrowed to the seed's lines, so a frame can be solved with
+    three lines (eq. (10), sigma 0.03 deg) in one chain and two (eq. (8), sigma 0.3 deg) in the
+    other. The rows must then agree within their own uncertainty: at most 5 combined sigma
+    (measured: largest 3.9 sigma, 1.27 deg, a two-line frame in a bank runoff; the same code with
+    the lane fit's sums in another order gave 0.79 deg, 2.4 sigma)."""
     from fusion.config import load_config
     from fusion.drive import SAMPLE_DRIVE
     from vision.video import estimate_video
@@ -145,7 +148,8 @@ def test_workers_share_a_video_like_one_process():
     for tab in (one, two):
         ok = tab[tab["valid"] == 1]
         rmse.append(float(np.sqrt(np.mean((ok["roll_deg"].to_numpy() - truth.loc[ok["frame"], "roll_deg"].to_numpy()) ** 2))))
-    assert np.nanmax(np.abs(one["roll_deg"] - two["roll_deg"])) < 1.0
+    z = np.abs(one["roll_deg"] - two["roll_deg"]) / np.hypot(one["roll_sigma_deg"], two["roll_sigma_deg"])
+    assert np.nanmax(z) < 5.0
     assert abs(rmse[0] - rmse[1]) < 0.02
     assert max(rmse) < 1.0  # the sample drive's vision roll RMSE is 0.61 deg (bank runoffs)
 

@@ -395,7 +395,7 @@ def _fit(pts: _Points, shape_degree: int, rows_per_m: float) -> LaneModel:
                      float(p[K + J + nc]) if nz else 0.0, pts.sag)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz):  # pragma: no cover (numba)
     j = edge_line[k_of[i]]
     pred = p[k_of[i]] + p[K + j] * t[i]
@@ -536,34 +536,47 @@ def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma:
             w[i] /= wm
         A = np.zeros((P, P))
         rhs = np.zeros(P)
-        col = np.zeros(P)
-        idx = np.zeros(P, np.int64)
-        for i in range(n):
+        # Row i has non-zeros only in the columns a_k, b_j, shape, dzeta of its edge k and line
+        # j: accumulate each edge's (m x m) block densely, then add it in at those columns.
+        m = 2 + nc + nz
+        col = np.zeros(m)
+        idx = np.zeros(m, np.int64)
+        Ab = np.zeros((m, m))
+        rb = np.zeros(m)
+        i = 0
+        while i < n:
             k = k_of[i]
             j = edge_line[k]
-            # the non-zero columns of row i: a_k, b_j, shape, dzeta
-            wi = w[i]
-            yi = y[i]
+            sj = scale[j]
             idx[0] = k
-            col[0] = 1.0
             idx[1] = K + j
-            col[1] = t[i]
-            tp = t[i] * t[i]
             for c in range(nc):
                 idx[2 + c] = K + J + c
-                col[2 + c] = scale[j] * tp
-                tp *= t[i]
-            m = 2 + nc
             if nz:
-                idx[m] = K + J + nc
-                col[m] = zc[i]
-                m += 1
+                idx[m - 1] = K + J + nc
+            Ab[:, :] = 0.0
+            rb[:] = 0.0
+            col[0] = 1.0
+            while i < n and k_of[i] == k:
+                wi = w[i]
+                yi = y[i]
+                col[1] = t[i]
+                tp = t[i] * t[i]
+                for c in range(nc):
+                    col[2 + c] = sj * tp
+                    tp *= t[i]
+                if nz:
+                    col[m - 1] = zc[i]
+                for u in range(m):
+                    wu = wi * col[u]
+                    rb[u] += wu * yi
+                    for v in range(u, m):
+                        Ab[u, v] += wu * col[v]
+                i += 1
             for u in range(m):
-                iu = idx[u]
-                wu = wi * col[u]
-                rhs[iu] += wu * yi
+                rhs[idx[u]] += rb[u]
                 for v in range(u, m):   # the upper triangle: idx is increasing
-                    A[iu, idx[v]] += wu * col[v]
+                    A[idx[u], idx[v]] += Ab[u, v]
         for u in range(P):
             for v in range(u):
                 A[u, v] = A[v, u]
