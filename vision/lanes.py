@@ -32,6 +32,7 @@ right), ``v`` rows (far to near). A marker's *left* edge is the one at the large
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
@@ -155,25 +156,37 @@ def _binarize(resp, thr, lo, hi, margin):  # pragma: no cover (numba)
     (the black fill outside makes false edges)."""
     H, W = resp.shape
     out = np.zeros((H, W), np.uint8)
+    # The response is an integer: resp > thr is resp > floor(thr), an integer compare (SIMD).
+    t = np.int16(min(max(math.floor(thr), -32768), 32767))
     for v in range(H):
         a = max(0, int(np.ceil(lo[v] + margin)))
         b = min(W - 1, int(np.floor(hi[v] - margin)))
-        for u in range(a, b + 1):
-            if resp[v, u] > thr:
-                out[v, u] = 1
+        for k in range(b + 1 - a):     # (a loop from 0 that numba vectorises)
+            out[v, a + k] = resp[v, a + k] > t
     return out
 
 
 def _threshold(resp: np.ndarray, width: int, lo, hi, margin: float, opts: LaneOptions) -> float:
     """Threshold (response units) from every fourth row and column inside the image's footprint:
     ``rel_threshold`` of the strong responses (99.5th percentile), at least ``min_contrast``."""
-    sub = resp[::4, ::4]
-    cols = np.arange(0, resp.shape[1], 4)[None, :]
-    inside = (cols >= (lo[::4] + margin)[:, None]) & (cols <= (hi[::4] - margin)[:, None])
-    sample = sub[inside]
+    sample = _threshold_sample(resp, lo, hi, margin)
     k = max(0, int(0.995 * sample.size) - 1)
     high = float(np.partition(sample, k)[k]) if sample.size else 0.0
     return max(opts.min_contrast * width, opts.rel_threshold * high)
+
+
+@nb.njit(cache=True)
+def _threshold_sample(resp, lo, hi, margin):  # pragma: no cover (numba)
+    """The responses of every fourth row and column inside the image's footprint."""
+    H, W = resp.shape
+    out = np.empty(((H + 3) // 4) * ((W + 3) // 4), resp.dtype)
+    n = 0
+    for v in range(0, H, 4):
+        for u in range(0, W, 4):
+            if lo[v] + margin <= u <= hi[v] - margin:
+                out[n] = resp[v, u]
+                n += 1
+    return out[:n]
 
 
 def _remove_small_blobs(binary: np.ndarray, min_rows: int) -> np.ndarray:
@@ -237,13 +250,13 @@ def _track_nb(binary, c, n_win, hw, min_pix):  # pragma: no cover (numba)
             break
         u0c = max(u0, 0)
         u1c = min(u1, W)
-        tot = 0.0
-        mom = 0.0
+        tot = 0
+        mom = 0
         for v in range(v0, v1):
-            for u in range(u0c, u1c):
-                if binary[v, u]:
-                    tot += 1.0
-                    mom += u
+            for k in range(u1c - u0c):      # integer sums from 0: numba vectorises them
+                b = np.int64(binary[v, u0c + k] != 0)
+                tot += b
+                mom += b * (u0c + k)
         vm = 0.5 * (v0 + v1)
         if tot >= min_pix:
             cnew = mom / tot
@@ -406,6 +419,31 @@ def _median_nb(a):  # pragma: no cover (numba)
     return np.median(a)
 
 
+@nb.njit(cache=True)
+def _left_edge_distance(va, ca, va0, vb, cb, vb0):  # pragma: no cover (numba)
+    """Median distance between two markers' fitted left edges on the rows both cover (sorted
+    ``va``, ``vb``); inf without common rows."""
+    d = np.empty(min(va.size, vb.size))
+    n, i, j = 0, 0, 0
+    while i < va.size and j < vb.size:
+        if va[i] < vb[j]:
+            i += 1
+        elif vb[j] < va[i]:
+            j += 1
+        else:
+            xa, xb = (va[i] - va0) * 0.01, (va[i] - vb0) * 0.01
+            ua, ub = 0.0, 0.0
+            for c in ca:
+                ua = ua * xa + c
+            for c in cb:
+                ub = ub * xb + c
+            d[n] = abs(ua - ub)
+            n += 1
+            i += 1
+            j += 1
+    return np.median(d[:n]) if n else np.inf
+
+
 def _robust_fit(v: np.ndarray, u: np.ndarray, deg: int, v0: float):
     """Fit of ``u(v - v0)`` with one pass of rejection at 3 robust sigma; ``(coef, rms, inliers)``
     (coefficients highest power first, in ``(v - v0) / 100``)."""
@@ -527,8 +565,7 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
     for mk in markers:
         if out:
             prev = out[-1]
-            vv = np.intersect1d(prev.v, mk.v)
-            if vv.size and _median(np.abs(prev.u_at(vv)[0] - mk.u_at(vv)[0])) < wpx:
+            if _left_edge_distance(prev.v, prev.fit_left, prev.v0, mk.v, mk.fit_left, mk.v0) < wpx:
                 if mk.v.size > prev.v.size:
                     out[-1] = mk
                 continue
