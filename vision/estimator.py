@@ -56,7 +56,8 @@ import numpy as np
 
 from .camera import Camera, Mount, RoadMarkings
 from .errors import VisionError
-from .frames import R_CS_FROM_CP, R_from_rpy, Ry, euler_from_matrix, matrix_from_euler, roll_xyz_from_zyx, rpy_from_R
+from .frames import (R_CS_FROM_CP, R_from_rpy, Ry, euler_from_matrix, matrix_from_euler, roll_xyz_from_zyx, rpy_from_R,
+                     rpy_from_camera_xyz_scalar)
 from .edges import measure_in_image
 from .ipm import Bev, BevGrid, default_grid, ground_from_rays, undistortion_lookup
 from .lanemodel import LaneModel, fit_lane_model_points, lane_direction
@@ -405,7 +406,8 @@ class Estimator:
         extent = np.empty(len(markers))
         for i, m in enumerate(markers):
             x_near = float(g.x_of_row(m.v_near))
-            y0[i] = float(g.y_of_col(np.mean(m.u_at(m.v_near)))) - 0.5 * curvature_1_m * x_near**2
+            ul, ur = m.u_at(m.v_near)
+            y0[i] = float(g.y_of_col(0.5 * (ul[0] + ur[0]))) - 0.5 * curvature_1_m * x_near**2
             extent[i] = m.v_near - m.v_far
         cand: list[int] = []
         for i in np.argsort(-y0):                      # left to right
@@ -595,9 +597,19 @@ class Estimator:
 
         # Edge points -> rays in cp.
         edges: list[_Edge] = []
-        for j, m in enumerate(lines):
-            if image_edges is not None:
-                ie = image_edges[j]
+        if image_edges is None:
+            # All edges' BEV points to rays in one product: left then right edge of each line.
+            us, vs_ = [], []
+            for m in lines:
+                k = m.inliers
+                us += [m.u_left[k], m.u_right[k]]
+                vs_ += [m.v[k], m.v[k]]
+            rays = bev.rays_of_bev(np.concatenate(us), np.concatenate(vs_))
+            ends = np.cumsum([0] + [u.size for u in us])
+            for i in range(len(us)):
+                edges.append(_Edge(rays[ends[i]:ends[i + 1]], i // 2, i % 2, False))
+        else:
+            for j, ie in enumerate(image_edges):
                 for side, uv in ((0, ie.left), (1, ie.right)):
                     n_ = cam.normalized(uv)
                     uv1 = uv.copy()
@@ -605,12 +617,6 @@ class Estimator:
                     n1 = cam.normalized(uv1)
                     step = np.concatenate([n1 - n_, np.zeros((n_.shape[0], 1))], -1)
                     edges.append(_Edge(np.concatenate([n_, np.ones((n_.shape[0], 1))], -1), j, side, True, step))
-                continue
-            k = m.inliers
-            n_k = int(k.sum())
-            rays = bev.rays_of_bev(np.concatenate([m.u_left[k], m.u_right[k]]), np.concatenate([m.v[k], m.v[k]]))
-            edges.append(_Edge(rays[:n_k], j, 0, False))
-            edges.append(_Edge(rays[n_k:], j, 1, False))
         n_points = int(sum(e.rays.shape[0] for e in edges))
         rms_px = float(np.sqrt(np.mean([m.rms_left**2 + m.rms_right**2 for m in lines]) / 2.0))
         shape_deg = o.fit_degree
@@ -821,8 +827,7 @@ class Estimator:
             # Metres of lateral position per pixel along each cut (the measurement's direction).
             _, y2 = ground_from_rays(rays + steps, R, H, z, x0)
             q_all = np.abs(y2 - y)
-        ok = (x > 0.5) & (x < self.options.fit_range_m)       # False for NaN (above the horizon)
-        counts = np.add.reduceat(ok, bounds[:-1])
+        ok, counts = _in_range(x, bounds, 0.5, self.options.fit_range_m)   # NaN (above the horizon) is out
         if counts.min() < 3:
             raise VisionError("an edge lies above the horizon at this pose")
         # BEV rows far away re-sample image rows (f_y H / x^2 rows per metre against 1 / dx);
@@ -856,7 +861,7 @@ class Estimator:
             x_lo, x_hi = x_hi, x_lo
         if n == 1:
             return np.array([x_lo])
-        return np.linspace(x_lo, x_hi, n + 2)[1:-1]
+        return np.arange(1, n + 1) * ((x_hi - x_lo) / (n + 1)) + x_lo     # linspace's interior, as it computes it
 
     def _model_alphas(self, model: LaneModel, xs, use_eq10, ratio, heights):
         """Angles of the edges (eq. (8)) or line centres (eq. (10)) from the nadir at the
@@ -977,17 +982,40 @@ def _stack_edges(edges: list[_Edge]):
     return rays, bounds, steps
 
 
+@nb.njit(cache=True)
+def _in_range(x, bounds, lo, hi):  # pragma: no cover (numba)
+    """Points with ``lo < x < hi`` (False for NaN), and how many of each edge's (``bounds``)."""
+    ok = np.empty(x.size, np.bool_)
+    counts = np.zeros(bounds.size - 1, np.int64)
+    for k in range(bounds.size - 1):
+        for i in range(bounds[k], bounds[k + 1]):
+            ok[i] = x[i] > lo and x[i] < hi
+            counts[k] += ok[i]
+    return ok, counts
+
+
 def _vehicle_sigmas(phi, theta, psi, cov_cam, tilt):
     """Propagate the covariance of the camera's XYZ angles to the 1-sigma of the vehicle's ZYX
     angles (central differences of eq. (22))."""
+    return _vehicle_sigmas_nb(float(phi), float(theta), float(psi), np.ascontiguousarray(cov_cam, dtype=float),
+                              float(tilt))
+
+
+@nb.njit(cache=True)
+def _vehicle_sigmas_nb(phi, theta, psi, cov_cam, tilt):  # pragma: no cover (numba)
+    """:func:`_vehicle_sigmas`, compiled (the six rotations of the differences)."""
     e = 1e-6
-    D = np.concatenate([np.eye(3), -np.eye(3)]) * e + np.array([phi, theta, psi])
-    R = matrix_from_euler("xyz", D[:, 0], D[:, 1], D[:, 2]) @ Ry(tilt).T
-    roll, pitch, yaw = rpy_from_R(R)
-    A = np.stack([roll, pitch, yaw], axis=-1)            # (6, 3)
-    J = ((A[:3] - A[3:]) / (2 * e)).T                    # d(vehicle) / d(camera)
-    cov = J @ np.asarray(cov_cam, float) @ J.T
-    return tuple(float(math.sqrt(max(cov[i, i], 0.0))) for i in range(3))
+    J = np.empty((3, 3))                     # d(vehicle roll, pitch, yaw) / d(camera phi, theta, psi)
+    for k in range(3):
+        ang = np.array([phi, theta, psi])
+        ang[k] += e
+        rp = rpy_from_camera_xyz_scalar(ang[0], ang[1], ang[2], tilt)
+        ang[k] -= 2.0 * e
+        rm = rpy_from_camera_xyz_scalar(ang[0], ang[1], ang[2], tilt)
+        for i in range(3):
+            J[i, k] = (rp[i] - rm[i]) / (2.0 * e)
+    cov = J @ cov_cam @ J.T
+    return (math.sqrt(max(cov[0, 0], 0.0)), math.sqrt(max(cov[1, 1], 0.0)), math.sqrt(max(cov[2, 2], 0.0)))
 
 
 @nb.njit(cache=True)

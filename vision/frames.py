@@ -280,6 +280,18 @@ def rpy_from_R_scalar(R) -> tuple[float, float, float]:
             math.atan2(R[1, 0], R[0, 0]))
 
 
+_XYZ = _EULER_PLANES["xyz"]
+_Y = _PLANE["y"]
+
+
+@nb.njit(cache=True)
+def rpy_from_camera_xyz_scalar(phi1: float, theta1: float, psi1: float, tilt_rad: float) -> tuple[float, float, float]:
+    """ZYX ``(roll, pitch, yaw)`` of ``Rx(phi1) Ry(theta1) Rz(psi1) Ry(tilt)^T``: the vehicle's
+    attitude from the camera's XYZ angles and the mount tilt (Alrazouk et al. 2024, eq. (22)),
+    for one set of floats."""
+    return rpy_from_R_scalar(_euler_scalar(phi1, theta1, psi1, _XYZ) @ _rot_scalar(tilt_rad, _Y[0], _Y[1]).T)
+
+
 @nb.njit(cache=True)
 def so3_exp_scalar(wx: float, wy: float, wz: float) -> np.ndarray:
     """:func:`so3_exp` of one rotation vector given as three floats."""

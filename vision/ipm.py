@@ -138,22 +138,40 @@ def ground_from_rays(rays_cp, R_o_from_cp, height_m: float, vertical_curvature_1
         Forward and left coordinates, m; NaN for rays that miss the road (at or above the
         horizon of a plane, over a crest).
     """
-    r = np.asarray(rays_cp, dtype=float) @ np.asarray(R_o_from_cp).T
-    zeta = float(vertical_curvature_1_m)
-    if zeta == 0.0:
-        down = -r[..., 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(down > 1e-9, height_m / down, np.nan)
-        return t * r[..., 0], t * r[..., 1]
-    x0 = float(x0_m)
-    A = 0.5 * zeta * r[..., 0] ** 2
-    B = -(r[..., 2] + zeta * x0 * r[..., 0])
-    C = 0.5 * zeta * x0 * x0 - height_m
-    with np.errstate(divide="ignore", invalid="ignore"):
-        disc = B * B - 4.0 * A * C
-        den = -B - np.sqrt(disc)              # the planar root's branch: t = 2C / den
-        t = np.where((disc >= 0) & (den < -1e-12), 2.0 * C / den, np.nan)
-    return t * r[..., 0], t * r[..., 1]
+    rays = np.asarray(rays_cp, dtype=float)
+    shape = rays.shape[:-1]
+    x, y = _ground_from_rays(np.ascontiguousarray(rays.reshape(-1, 3)), np.ascontiguousarray(R_o_from_cp, dtype=float),
+                             float(height_m), float(vertical_curvature_1_m), float(x0_m))
+    return x.reshape(shape), y.reshape(shape)
+
+
+@nb.njit(cache=True)
+def _ground_from_rays(rays, R, H, zeta, x0):  # pragma: no cover (numba)
+    """:func:`ground_from_rays` for rays ``(n, 3)``, one pass."""
+    n = rays.shape[0]
+    x = np.empty(n)
+    y = np.empty(n)
+    C = 0.5 * zeta * x0 * x0 - H
+    for i in range(n):
+        a, b, c = rays[i, 0], rays[i, 1], rays[i, 2]
+        r0 = a * R[0, 0] + b * R[0, 1] + c * R[0, 2]
+        r1 = a * R[1, 0] + b * R[1, 1] + c * R[1, 2]
+        r2 = a * R[2, 0] + b * R[2, 1] + c * R[2, 2]
+        t = np.nan
+        if zeta == 0.0:
+            if -r2 > 1e-9:
+                t = H / -r2
+        else:
+            A = 0.5 * zeta * r0 * r0
+            B = -(r2 + zeta * x0 * r0)
+            disc = B * B - 4.0 * A * C
+            if disc >= 0:
+                den = -B - math.sqrt(disc)        # the planar root's branch: t = 2C / den
+                if den < -1e-12:
+                    t = 2.0 * C / den
+        x[i] = t * r0
+        y[i] = t * r1
+    return x, y
 
 
 class Bev:

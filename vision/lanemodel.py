@@ -369,13 +369,33 @@ class _Points:
         self.J = int(self.edge_line.max()) + 1
         if counts.min() < 1:
             raise VisionError("lane model is singular (an edge without points)")
-        self.k_of = np.repeat(np.arange(self.K, dtype=np.int64), counts)
         self.q = self.x if q is None else np.ascontiguousarray(q, np.float64)
         self.sag = None if sag is None else tuple(float(v) for v in sag)
-        self.z = sag_weight(self.x, *self.sag) if sag is not None else np.zeros(0)
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        self.x_min = np.minimum.reduceat(self.x, starts)
-        self.x_max = np.maximum.reduceat(self.x, starts)
+        H, x0, zeta = self.sag if sag is not None else (1.0, 0.0, 0.0)
+        self.k_of, self.z, self.x_min, self.x_max = _prepare(self.x, counts, sag is not None, H, x0, zeta)
+
+
+@nb.njit(cache=True)
+def _prepare(x, counts, has_sag, H, x0, zeta):  # pragma: no cover (numba)
+    """Edge of each point, the sag column's weight (:func:`sag_weight`), each edge's range."""
+    K = counts.size
+    k_of = np.empty(x.size, np.int64)
+    z = np.empty(x.size if has_sag else 0)
+    x_min = np.empty(K)
+    x_max = np.empty(K)
+    i = 0
+    for k in range(K):
+        lo, hi = np.inf, -np.inf
+        for _ in range(counts[k]):
+            xi = x[i]
+            k_of[i] = k
+            lo, hi = min(lo, xi), max(hi, xi)
+            if has_sag:
+                u = xi - x0
+                z[i] = u * u / (2.0 * (H - 0.5 * zeta * u * u + zeta * u * xi))
+            i += 1
+        x_min[k], x_max[k] = lo, hi
+    return k_of, z, x_min, x_max
 
 
 def _fit(pts: _Points, shape_degree: int, rows_per_m: float) -> LaneModel:
