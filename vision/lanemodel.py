@@ -415,17 +415,32 @@ def _fit(pts: _Points, shape_degree: int, rows_per_m: float) -> LaneModel:
                      float(p[K + J + nc]) if nz else 0.0, pts.sag)
 
 
-@nb.njit(cache=True, inline="always")
-def _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz):  # pragma: no cover (numba)
-    j = edge_line[k_of[i]]
-    pred = p[k_of[i]] + p[K + j] * t[i]
-    tp = t[i] * t[i]
-    for c in range(nc):
-        pred += scale[j] * p[K + J + c] * tp
-        tp *= t[i]
-    if nz:
-        pred += p[K + J + nc] * zc[i]
-    return pred
+@nb.njit(cache=True)
+def _residuals(p, y, t, k_of, edge_line, scale, zc, K, J, nc, nz, out):  # pragma: no cover (numba)
+    """``out = y - prediction`` of parameters ``p``, edge by edge (the points are in edge order)."""
+    n = t.shape[0]
+    dz = p[K + J + nc] if nz else 0.0
+    i0 = 0
+    while i0 < n:
+        k = k_of[i0]
+        i1 = i0
+        while i1 < n and k_of[i1] == k:
+            i1 += 1
+        j = edge_line[k]
+        a, b, s = p[k], p[K + j], scale[j]
+        for m in range(i1 - i0):          # a loop from 0 over the edge's points
+            i = i0 + m
+            ti = t[i]
+            tp = ti * ti
+            shape = 0.0
+            for c in range(nc):
+                shape += p[K + J + c] * tp
+                tp *= ti
+            pred = a + b * ti + s * shape
+            if nz:
+                pred += dz * zc[i]
+            out[i] = y[i] - pred
+        i0 = i1
 
 
 @nb.njit(cache=True)
@@ -515,9 +530,9 @@ def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma:
             b0 = 0.0
             b1 = 0.0
             mr2 = 0.0
+            _residuals(p, y, t, k_of, edge_line, scale, zc, K, J, nc, nz, res)
             for i in range(n):
-                r = y[i] - _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz)
-                res[i] = r
+                r = res[i]
                 g0 = indep[i]
                 g1 = indep[i] * q[i] * q[i]
                 rr = indep[i] * r * r
@@ -605,19 +620,18 @@ def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma:
             return False, p, Ai, 0.0, scale
         p = Ai @ rhs
     # residuals, variance, lag-1 autocorrelation along each edge
-    s2 = 0.0
-    num = 0.0
-    den = 0.0
-    prev_rw = 0.0
+    _residuals(p, y, t, k_of, edge_line, scale, zc, K, J, nc, nz, res)
+    rw = np.empty(n)
     for i in range(n):
-        r = y[i] - _predict(i, p, t, k_of, edge_line, scale, zc, K, J, nc, nz)
-        s2 += w[i] * r * r
-        rw = r * np.sqrt(w[i])
-        den += rw * rw
-        if i > 0 and k_of[i] == k_of[i - 1]:
-            num += rw * prev_rw
-        prev_rw = rw
-    s2 /= max(1, n - P)
+        rw[i] = res[i] * math.sqrt(w[i])
+    den = 0.0
+    for i in range(n):
+        den += rw[i] * rw[i]
+    num = 0.0
+    for i in range(1, n):
+        if k_of[i] == k_of[i - 1]:
+            num += rw[i] * rw[i - 1]
+    s2 = den / max(1, n - P)
     rho = min(max(num / den, 0.0), 0.98) if den > 0 else 0.0
     cov = Ai * s2 * (1.0 + rho) / (1.0 - rho)
     # slopes were fitted per t = x / 10: back to per metre
