@@ -19,16 +19,11 @@ from imu.can_source import QUIET_BUS_MARGIN_S
 from test_imu_common import MOUNT_FRD, RES_GYRO_RAD_S, sim_imu, sim_mapping, vehicle_truth
 
 def _sender(bus: can.BusABC, msgs: list[can.Message], start: threading.Event, done: threading.Event) -> None:
-    """Send each message at its (relative) log time, in real time, from its own thread."""
+    """Send each message at its (relative) log time, in real time (python-can's MessageSync),
+    from its own thread; the virtual bus stamps them with the time they are sent."""
     start.wait()
-    t0_wall = time.perf_counter()
-    t0_log = msgs[0].timestamp
-    for m in msgs:
-        delay = (m.timestamp - t0_log) - (time.perf_counter() - t0_wall)
-        if delay > 0:
-            time.sleep(delay)
-        bus.send(can.Message(arbitration_id=m.arbitration_id, is_extended_id=m.is_extended_id,
-                             data=m.data, dlc=m.dlc))
+    for m in can.MessageSync(msgs):
+        bus.send(m)
     done.set()
 
 
