@@ -292,8 +292,17 @@ def _line_at(a, b, c, line_scale, edge_line, j, x):  # pragma: no cover (numba)
 
 def sag_weight(x, height_m: float, x0_m: float, zeta_1_m: float):
     """``u^2 / (2 D)``, ``u = x - x0``, ``D = H - zeta u^2 / 2 + zeta u x`` (module docstring)."""
-    u = np.asarray(x, float) - x0_m
-    return u * u / (2.0 * (height_m - 0.5 * zeta_1_m * u * u + zeta_1_m * u * np.asarray(x, float)))
+    x = np.asarray(x, float)
+    return _sag_weight(np.ascontiguousarray(x.reshape(-1)), float(height_m), float(x0_m), float(zeta_1_m)).reshape(x.shape)
+
+
+@nb.njit(cache=True)
+def _sag_weight(x, H, x0, zeta):  # pragma: no cover (numba)
+    out = np.empty(x.size)
+    for i in range(x.size):
+        u = x[i] - x0
+        out[i] = u * u / (2.0 * (H - 0.5 * zeta * u * u + zeta * u * x[i]))
+    return out
 
 
 def fit_lane_model(xs: list[np.ndarray], ys: list[np.ndarray], edge_line, edge_side, shape_degree: int,
@@ -380,21 +389,17 @@ def _prepare(x, counts, has_sag, H, x0, zeta):  # pragma: no cover (numba)
     """Edge of each point, the sag column's weight (:func:`sag_weight`), each edge's range."""
     K = counts.size
     k_of = np.empty(x.size, np.int64)
-    z = np.empty(x.size if has_sag else 0)
     x_min = np.empty(K)
     x_max = np.empty(K)
     i = 0
     for k in range(K):
         lo, hi = np.inf, -np.inf
         for _ in range(counts[k]):
-            xi = x[i]
             k_of[i] = k
-            lo, hi = min(lo, xi), max(hi, xi)
-            if has_sag:
-                u = xi - x0
-                z[i] = u * u / (2.0 * (H - 0.5 * zeta * u * u + zeta * u * xi))
+            lo, hi = min(lo, x[i]), max(hi, x[i])
             i += 1
         x_min[k], x_max[k] = lo, hi
+    z = _sag_weight(x, H, x0, zeta) if has_sag else np.empty(0)
     return k_of, z, x_min, x_max
 
 
