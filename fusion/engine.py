@@ -7,7 +7,10 @@ vision result at a time between two IMU samples is applied at its own time: the 
 propagated to it, updated, and propagated on. A result that arrives late (the vision takes
 longer than an IMU interval, or frames come out of order) rolls the filter back to the stored
 state just before its time and re-propagates the stored IMU samples: the same answer as if
-it had come in time, as long as it is within ``history_s``.
+it had come in time, as long as it is within ``history_s``: the replay applies again the
+results (and deferred rolls, :class:`fusion.ekf.RollAhead`) that fell in the replayed samples.
+A deferred roll falls due ``roll_lookahead_m / v`` after its frame; one that falls due before
+the newest sample (a result later than that) is applied at the next interval's start.
 
 With ``record=True`` every step's prior, posterior and Jacobian are kept for the RTS smoother
 (:mod:`fusion.smoother`); recording needs inputs in time order.
@@ -21,9 +24,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .ekf import AttitudeEKF, ImuStep, NoiseModel, S, VisionMeasurement, vision_hx, vision_jacobian
+from vision.frames import wrap_angle
+
+from .ekf import AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, vision_hx, vision_jacobian
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
+
+
+#: Without a vision result for this long the bank rate decays with its lane-loss time constant
+#: (:attr:`fusion.ekf.NoiseModel.bank_rate_tau_no_vision_s`): three frames at 30 fps.
+_VISION_GAP_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -42,6 +52,9 @@ class FusionOptions:
     #: covariance is reset to the initial one, so that a filter that drifted while the lanes
     #: were lost cannot lock itself out.
     reacquire_after_rejections: int = 10
+    #: Apply the vision roll when the vehicle reaches the road it was measured on
+    #: (:class:`fusion.ekf.RollAhead`) instead of modelling the bank ahead with the bank rate.
+    defer_roll: bool = True
 
 
 @dataclass(frozen=True)
@@ -91,6 +104,9 @@ class _ImuSample:
     x_post: np.ndarray = None
     P_post: np.ndarray = None
     gyro_dot: np.ndarray = None
+    roll_prop: float = 0.0
+    applied: tuple = ()   # measurements applied in the interval ending here (for replays)
+
 
 
 class FusionStream:
@@ -113,7 +129,7 @@ class FusionStream:
         self.steps: list[StepRecord] = []
         self.start: tuple[np.ndarray, np.ndarray] | None = None   # posterior at the first sample
         self._hist: deque[_ImuSample] = deque()
-        self._pending: list[VisionMeasurement] = []       # vision results waiting for the IMU to pass them
+        self._pending: list[VisionMeasurement | RollAhead] = []   # waiting for the IMU to pass their time
         self._n = 0
         self._initialized = False
         self._vision_initialized = False
@@ -123,9 +139,11 @@ class FusionStream:
         self._rejected_in_row = 0
         self._speed_initialized = False
         self._speed_rejected_in_row = 0
+        self._roll_rejected_in_row = 0
+        self._roll_prop = 0.0   # running sum of the roll (relative to level) the propagation turned, rad
         self.counts = dict(imu=0, vision_used=0, vision_rejected=0, vision_invalid=0, vision_late=0,
-                           vision_too_old=0, vision_reacquired=0, gravity_rejected=0, speed_rejected=0,
-                           speed_reacquired=0)
+                           vision_too_old=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0, roll_ahead_reacquired=0,
+                           gravity_rejected=0, speed_rejected=0, speed_reacquired=0)
 
     # ---- inputs ----
 
@@ -180,9 +198,14 @@ class FusionStream:
         ekf.x[S.SPEED] = v
         self._initialized = True
 
-    def _process_sample(self, s: _ImuSample, prev: _ImuSample | None = None, visions=()) -> None:
+    def _process_sample(self, s: _ImuSample, prev: _ImuSample | None = None, visions=(), replayed=()) -> None:
         """Propagate from the previous sample to ``s``, applying the vision results that fall
-        inside the interval at their own times, then the measurements of ``s``."""
+        inside the interval at their own times, then the measurements of ``s``. ``replayed``:
+        results applied before in this interval (a replay), merged in time order; they do not
+        defer their roll again."""
+        new = {id(v) for v in visions}
+        visions = sorted((*visions, *replayed), key=lambda v: v.t_s) if replayed else visions
+        s.applied = tuple(visions)
         prev = prev if prev is not None else (self._hist[-1] if self._hist else None)
         if prev is None:
             self._init_from_accel(s)
@@ -192,10 +215,11 @@ class FusionStream:
             for v in visions:
                 if v.t_s >= s.t:
                     continue  # at the sample's own time: applied after its measurements below
-                g_v = prev.gyro + (s.gyro - prev.gyro) * (v.t_s - prev.t) / (s.t - prev.t)
-                self._propagate(t0, v.t_s, (g0 + g_v) / 2, imu_index=-1)
-                self._vision_update(v)
-                t0, g0 = v.t_s, g_v
+                tv = max(v.t_s, t0)   # a deferred roll that fell due before this interval: now
+                g_v = prev.gyro + (s.gyro - prev.gyro) * (tv - prev.t) / (s.t - prev.t)
+                self._propagate(t0, tv, (g0 + g_v) / 2, imu_index=-1)
+                self._vision_update(v, id(v) in new)
+                t0, g0 = tv, g_v
             self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index)
             s.gyro_dot = (s.gyro - prev.gyro) / (s.t - prev.t)
         ekf = self.ekf
@@ -209,8 +233,8 @@ class FusionStream:
         # measurements, in the same order as a late result would be applied.
         for v in visions:
             if prev is None or v.t_s >= s.t:
-                self._vision_update(v)
-        s.x_post, s.P_post = ekf.x.copy(), ekf.P.copy()
+                self._vision_update(v, id(v) in new)
+        s.x_post, s.P_post, s.roll_prop = ekf.x.copy(), ekf.P.copy(), self._roll_prop
         if self.record:
             if prev is None:
                 self.start = (s.x_post, s.P_post)
@@ -222,8 +246,10 @@ class FusionStream:
             return
         offset, t_fit = self._lane_fit
         follow = t1 - t_fit > self.options.lane_fit_hold_s  # no lane fit: the road turns with the vehicle
-        u = ImuStep(t1 - t0, gyro, follow, offset)
+        u = ImuStep(t1 - t0, gyro, follow, offset, vision_gap=t1 - self._last_vision_t > _VISION_GAP_S)
+        roll0 = self.ekf.x[S.ROLL_W]
         self.ekf.propagate(u)
+        self._roll_prop += self.ekf.x[S.ROLL_W] - roll0
         self._road_rate = self.ekf.road_turn_rate(u)
         if self.record:
             ekf = self.ekf
@@ -244,9 +270,36 @@ class FusionStream:
             self.counts["speed_rejected"] += 1
             self._speed_rejected_in_row += 1
 
-    def _vision_update(self, m: VisionMeasurement) -> None:
+    def _vision_update(self, m: VisionMeasurement | RollAhead, first: bool = True) -> None:
+        """Apply a vision result (``first``: not a replay of one applied before) or a deferred roll."""
         ekf = self.ekf
+        if isinstance(m, RollAhead):
+            turned = self._roll_prop - m.roll_prop_at_capture_rad
+            ok = ekf.update_roll_ahead(m, turned)
+            self.counts["roll_ahead_used" if ok else "roll_ahead_rejected"] += first
+            self._roll_rejected_in_row = 0 if ok else self._roll_rejected_in_row + 1
+            if self._roll_rejected_in_row >= self.options.reacquire_after_rejections:
+                # the bank drifted away from what the vision sees: take it from the vision again
+                n = self.options.noise
+                bank = ekf.x[S.BANK] + wrap_angle(vision_hx(ekf.x)[0] - (m.roll_rad + turned))
+                self._reset(((S.BANK, bank, n.init_bank_rad), (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s)))
+                self.counts["roll_ahead_reacquired"] += first
+                ekf.update_roll_ahead(m, turned)
+                self._roll_rejected_in_row = 0
+            if self.record and self.steps:
+                self.steps[-1].x_post, self.steps[-1].P_post = ekf.x.copy(), ekf.P.copy()
+            return
         t, angles, kappa, offset = m.t_s, m.angles_rad, m.curvature_1_m, m.lateral_offset_m
+        v = ekf.x[S.SPEED]
+        defer = self.options.defer_roll and m.roll_lookahead_m > 0.0 and v > 1.0 and self._vision_initialized
+        rate_ahead = 0.0
+        if defer:
+            dt_ahead = m.roll_lookahead_m / v
+            # the bank the vision roll says is ahead, against the bank here
+            rate_ahead = (ekf.x[S.ROLL_W] - angles[0] - ekf.x[S.BANK]) / dt_ahead
+            if first:
+                self._pending.append(RollAhead(t + dt_ahead, float(angles[0]), float(m.sigmas_rad[0]), dt_ahead,
+                                               self._roll_prop))
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
             # First frame: take yaw, bank and grade from it so that the filter starts consistent.
@@ -256,17 +309,17 @@ class FusionStream:
             if math.isfinite(kappa):
                 ekf.x[S.CURVATURE] = kappa
             self._vision_initialized = True
-        if ekf.update_vision(m):
-            self.counts["vision_used"] += 1
+        if ekf.update_vision(m, defer_roll=defer, bank_rate_ahead=rate_ahead):
+            self.counts["vision_used"] += first
             self._last_vision_t = t
             self._rejected_in_row = 0
         else:
-            self.counts["vision_rejected"] += 1
+            self.counts["vision_rejected"] += first
             self._rejected_in_row += 1
             if self._rejected_in_row >= self.options.reacquire_after_rejections:
                 self._reacquire(angles, kappa)
                 self.counts["vision_reacquired"] += 1
-                if ekf.update_vision(m):
+                if ekf.update_vision(m, defer_roll=defer, bank_rate_ahead=rate_ahead):
                     self.counts["vision_used"] += 1
                     self._last_vision_t = t
                 self._rejected_in_row = 0
@@ -319,13 +372,15 @@ class FusionStream:
         if replay and self.record:
             raise ValueError("late vision result with record=True: feed inputs in time order")
         self.ekf.x, self.ekf.P = base.x_post.copy(), base.P_post.copy()
+        self._roll_prop = base.roll_prop
         if not replay:  # exactly at the newest sample's time
             self._vision_update(item)
+            base.applied = (*base.applied, item)
             base.x_post, base.P_post = self.ekf.x.copy(), self.ekf.P.copy()
             return
         prev = base
         for i, s in enumerate(replay):
-            self._process_sample(s, prev=prev, visions=[item] if i == 0 else ())
+            self._process_sample(s, prev=prev, visions=[item] if i == 0 else (), replayed=s.applied)
             prev = s
 
     # ---- outputs ----

@@ -11,6 +11,8 @@ Every key is optional; units are in the names. Example::
     camera_time_offset_s = 0.0       # added to frames.csv times
     estimate_time_offset = false     # estimate it from the data and use the estimate
     smooth = false                   # forward filter + RTS smoother (offline)
+    defer_roll = true                # vision roll applied when the vehicle reaches the road it
+                                     # was measured on (false: modelled as the bank ahead)
 """
 
 from __future__ import annotations
@@ -74,6 +76,7 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
         history_s=t.get("history_s", "float", 1.0, min=0.0, max=60.0),
         lane_fit_hold_s=t.get("lane_fit_hold_s", "float", 0.25, min=0.0, max=10.0),
         reacquire_after_rejections=t.get("reacquire_after_rejections", "int", 10, min=1),
+        defer_roll=t.get("defer_roll", "bool", True),
     )
     run = RunSettings(
         camera_time_offset_s=t.get("camera_time_offset_s", "float", 0.0, min=-10.0, max=10.0),
