@@ -48,10 +48,12 @@ turned through meanwhile::
 
 Modelling it instead as the bank ahead, ``bank + bank_rate L / v``, assumes that the bank rate
 seen ahead is the one under the wheels: it starts and ends every runoff ``L / v`` (about half a
-second) early. Measured on the three benchmark drives, applying the roll at the lookahead cut
-the fused roll RMSE from 0.224 / 0.205 / 0.119 to 0.139 / 0.126 / 0.138 deg and the bank from
-0.336 / 0.422 / 0.512 to 0.278 / 0.236 / 0.508 deg. Pitch and yaw are applied at capture with
-the twist correction of :meth:`AttitudeEKF.update_vision`.
+second) early. Measured on the three HD benchmark drives (cached vision, forward filter),
+applying the roll at the lookahead cut the fused roll RMSE from 0.224 / 0.205 / 0.119 to
+0.136 / 0.103 / 0.138 deg and the bank from 0.336 / 0.422 / 0.512 to 0.276 / 0.228 / 0.508
+deg; on the bundled 640x360 sample drive it is worse for roll (0.29 against 0.17 deg; bank 0.47
+against 0.45), which ``defer_roll = false`` in ``[fusion]`` gives back. Pitch and yaw are
+applied at capture with the twist correction of :meth:`AttitudeEKF.update_vision`.
 
 Without a fresh lane curvature (lane loss) the road is assumed to turn with the vehicle
 (``kappa`` = NaN in :class:`ImuStep`): yaw relative to the road is held and its uncertainty grows.

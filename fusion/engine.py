@@ -317,7 +317,7 @@ class FusionStream:
             self.counts["vision_rejected"] += first
             self._rejected_in_row += 1
             if self._rejected_in_row >= self.options.reacquire_after_rejections:
-                self._reacquire(angles, kappa)
+                self._reacquire(angles, kappa, bank=not defer)
                 self.counts["vision_reacquired"] += 1
                 if ekf.update_vision(m, defer_roll=defer, bank_rate_ahead=rate_ahead):
                     self.counts["vision_used"] += 1
@@ -326,14 +326,17 @@ class FusionStream:
         if self.record and self.steps:
             self.steps[-1].x_post, self.steps[-1].P_post = ekf.x.copy(), ekf.P.copy()
 
-    def _reacquire(self, angles, kappa: float = math.nan) -> None:
-        """Reset the road states to agree with ``angles`` and reopen their covariance."""
+    def _reacquire(self, angles, kappa: float = math.nan, bank: bool = True) -> None:
+        """Reset the road states to agree with ``angles`` and reopen their covariance; the bank
+        only with ``bank`` (with the roll deferred, the rejected updates did not measure it: it
+        has its own re-acquisition from the deferred rolls)."""
         ekf, n = self.ekf, self.options.noise
         x = ekf.x
-        self._reset(((S.YAW_REL, angles[2], n.init_angle_rad), (S.BANK, x[S.ROLL_W] - angles[0], n.init_bank_rad),
-                     (S.GRADE, x[S.PITCH_W] - angles[1], n.init_grade_rad),
-                     (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s),
-                     (S.CURVATURE, kappa if math.isfinite(kappa) else x[S.CURVATURE], n.init_curvature_1_m)))
+        states = [(S.YAW_REL, angles[2], n.init_angle_rad), (S.GRADE, x[S.PITCH_W] - angles[1], n.init_grade_rad),
+                  (S.CURVATURE, kappa if math.isfinite(kappa) else x[S.CURVATURE], n.init_curvature_1_m)]
+        if bank:
+            states += [(S.BANK, x[S.ROLL_W] - angles[0], n.init_bank_rad), (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s)]
+        self._reset(tuple(states))
 
     def _reset(self, states) -> None:
         """Give states ``(index, value, sigma)`` new values, uncorrelated with the rest.
