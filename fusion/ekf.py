@@ -432,6 +432,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.x_post, self.P_post = self.x, self.P
         return True
 
+    def _vision_sigma(self, sigma_rad):
+        """The vision's own 1-sigma as the filter uses it: scaled, then floored."""
+        n = self.noise
+        return np.maximum(sigma_rad * n.vision_sigma_scale, n.vision_sigma_floor_rad)
+
     def update_vision(self, m: VisionMeasurement, defer_roll: bool = False, bank_rate_ahead: float = 0.0) -> bool:
         """Vision (roll, pitch, yaw) relative to the road, with the estimator's own 1-sigma, then
         the lane-fit curvature when there is one, gated on its own: a curvature outlier must not
@@ -452,7 +457,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         """
         n = self.noise
         curvature_1_m, curvature_sigma_1_m = m.curvature_1_m, m.curvature_sigma_1_m
-        sig = np.maximum(np.asarray(m.sigmas_rad, dtype=float) * n.vision_sigma_scale, n.vision_sigma_floor_rad)
+        sig = self._vision_sigma(np.asarray(m.sigmas_rad, dtype=float))
         x_seen = self.x
         v = self.x[S.SPEED]
         lookahead = m.roll_lookahead_m if math.isfinite(m.roll_lookahead_m) and m.roll_lookahead_m > 0 else 0.0
@@ -499,7 +504,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         under the wheels, with ``roll_turned_rad`` the vehicle's roll (relative to level) since
         the frame, as the gyros propagated it. Gated like every update."""
         n = self.noise
-        sig = max(r.sigma_rad * n.vision_sigma_scale, n.vision_sigma_floor_rad)
+        sig = float(self._vision_sigma(r.sigma_rad))
         # the lookahead's own error (a fraction of it) is a timing error of the bank
         sig = math.hypot(sig, n.vision_road_model_error * abs(self.x[S.BANK_RATE]) * r.dt_ahead_s)
         H = vision_jacobian(self.x)[:1]

@@ -108,7 +108,6 @@ class _ImuSample:
     applied: tuple = ()   # measurements applied in the interval ending here (for replays)
 
 
-
 class FusionStream:
     """Feed :meth:`add_imu` and :meth:`add_vision`; read :meth:`estimate`.
 
@@ -142,8 +141,8 @@ class FusionStream:
         self._roll_rejected_in_row = 0
         self._roll_prop = 0.0   # running sum of the roll (relative to level) the propagation turned, rad
         self.counts = dict(imu=0, vision_used=0, vision_rejected=0, vision_invalid=0, vision_late=0,
-                           vision_too_old=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0, roll_ahead_reacquired=0,
-                           gravity_rejected=0, speed_rejected=0, speed_reacquired=0)
+                           vision_too_old=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
+                           roll_ahead_reacquired=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0)
 
     # ---- inputs ----
 
@@ -318,9 +317,9 @@ class FusionStream:
             self._rejected_in_row += 1
             if self._rejected_in_row >= self.options.reacquire_after_rejections:
                 self._reacquire(angles, kappa, bank=not defer)
-                self.counts["vision_reacquired"] += 1
+                self.counts["vision_reacquired"] += first
                 if ekf.update_vision(m, defer_roll=defer, bank_rate_ahead=rate_ahead):
-                    self.counts["vision_used"] += 1
+                    self.counts["vision_used"] += first
                     self._last_vision_t = t
                 self._rejected_in_row = 0
         if self.record and self.steps:
