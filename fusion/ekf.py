@@ -36,6 +36,9 @@ walk could only follow by letting vision noise through; with a rate state the ra
 and the bank stays smooth where it is constant. The rate is mean-reverting (time constant
 ``tau_bank``, a second) rather than a random walk, and while the vision is away (lane loss)
 it decays faster (0.3 s), so that the bank holds instead of extrapolating the last runoff.
+With the vision roll deferred, the rate's sigma is scheduled by the runoffs the camera sees
+ahead (:attr:`NoiseModel.bank_rate_preview_gain`): on steady road none is in view and the bank
+holds between the vision's rolls, which come in bursts, one road patch per dash.
 
 Vision (roll, pitch, yaw relative to the road, :meth:`AttitudeEKF.update_vision`). The
 estimator's roll is relative to the road ``L = roll_lookahead_m`` ahead, where its lane
@@ -140,6 +143,17 @@ class NoiseModel:
     #: Its correlation time while the vision is away (lane loss): the bank then holds instead
     #: of extrapolating the last runoff (3.3 deg of roll error after 5 s with 1 s, measured).
     bank_rate_tau_no_vision_s: float = 0.3
+    #: The bank-rate 1-sigma scheduled by what the camera sees ahead (with the vision roll
+    #: deferred): ``max(floor, gain |rate ahead|, gain |bank_rate|)``, where the rate ahead is
+    #: the mean bank rate between the vehicle and the vision's roll cross-sections. On steady
+    #: road no runoff is in view and the bank holds; a runoff shows ``lookahead / v`` (about
+    #: half a second) before the wheels reach it. The gain covers a runoff's peak rate against
+    #: its mean over the stretch ahead (1.5 for a cubic profile). Without it the constant
+    #: ``bank_rate_rad_s`` let the bank's sigma climb to 1.3 deg between the vision's rolls,
+    #: which come in bursts, one road patch per dash of the centre line (0.8 s at 80 km/h).
+    #: ``gain = 0`` keeps the constant.
+    bank_rate_preview_floor_rad_s: float = math.radians(0.25)
+    bank_rate_preview_gain: float = 2.0
     grade_walk_rad_sqrt_s: float = math.radians(0.2)
     accel_x_walk_m_s2_sqrt_s: float = 3.0                  # longitudinal jerk
     pitch_walk_rad_sqrt_s: float = math.radians(0.05)      # attitude motion the gyro does not see
@@ -353,6 +367,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
         q[S.ROLL_W] = q[S.YAW_REL] = n.pitch_walk_rad_sqrt_s**2
         q[S.PITCH_W] = (n.pitch_walk_rad_sqrt_s if has_pitch_rate else n.no_pitch_rate_walk_rad_sqrt_s) ** 2
         self._q_per_s = q
+        self._q_scheduled = q.copy()   # with the bank-rate sigma of set_bank_rate_sigma
+        self._bank_rate_scheduled = False
         self.last_d2 = math.nan
         self._gate = {k: float(chi2.ppf(noise.gate_probability, k)) for k in (1, 2, 3, 4)}
         self._R_accel = np.diag(np.asarray(noise.accel_meas_m_s2, dtype=float) ** 2)
@@ -364,6 +380,13 @@ class AttitudeEKF(ExtendedKalmanFilter):
         """Propagate the state over one IMU interval (module docstring, "Process")."""
         self.x = _predict_x(self.x, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m,
                             self.has_pitch_rate, self._bank_rate_tau(u))
+
+    def set_bank_rate_sigma(self, sigma_rad_s: float | None) -> None:
+        """Stationary 1-sigma of the bank rate from now on (None: ``noise.bank_rate_rad_s``);
+        while the vision is away the constant applies (:attr:`ImuStep.vision_gap`)."""
+        self._bank_rate_scheduled = sigma_rad_s is not None
+        if sigma_rad_s is not None:
+            self._q_scheduled[S.BANK_RATE] = 2.0 * sigma_rad_s**2 / self.noise.bank_rate_tau_s
 
     def _bank_rate_tau(self, u: ImuStep) -> float:
         n = self.noise
@@ -378,7 +401,9 @@ class AttitudeEKF(ExtendedKalmanFilter):
         """Jacobian ``F = I + A dt`` and process noise ``Q`` of one interval (:func:`_transition`)."""
         n = self.noise
         return _transition(self.x, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
-                           self._bank_rate_tau(u), self._q_per_s, n.gyro_noise_rad_s**2,
+                           self._bank_rate_tau(u),
+                           self._q_scheduled if self._bank_rate_scheduled and not u.vision_gap else self._q_per_s,
+                           n.gyro_noise_rad_s**2,
                            n.yaw_rel_walk_no_lanes_rad_sqrt_s**2)
 
     def predict(self, u: ImuStep = None) -> None:

@@ -296,6 +296,11 @@ class FusionStream:
             dt_ahead = m.roll_lookahead_m / v
             # the bank the vision roll says is ahead, against the bank here
             rate_ahead = (ekf.x[S.ROLL_W] - angles[0] - ekf.x[S.BANK]) / dt_ahead
+            n = self.options.noise
+            if n.bank_rate_preview_gain > 0.0:
+                ekf.set_bank_rate_sigma(max(n.bank_rate_preview_floor_rad_s,
+                                            n.bank_rate_preview_gain * abs(rate_ahead),
+                                            n.bank_rate_preview_gain * abs(ekf.x[S.BANK_RATE])))
             if first:
                 self._pending.append(RollAhead(t + dt_ahead, float(angles[0]), float(m.sigmas_rad[0]), dt_ahead,
                                                self._roll_prop))

@@ -44,6 +44,8 @@ _NOISE_KEYS = {
     "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians),
     "bank_rate_deg_s": ("bank_rate_rad_s", math.radians),
     "bank_rate_tau_s": ("bank_rate_tau_s", float),
+    "bank_rate_preview_floor_deg_s": ("bank_rate_preview_floor_rad_s", math.radians),
+    "bank_rate_preview_gain": ("bank_rate_preview_gain", float),
     "grade_walk_deg_sqrt_s": ("grade_walk_rad_sqrt_s", math.radians),
     "longitudinal_jerk_m_s3": ("accel_x_walk_m_s2_sqrt_s", float),
     "vision_sigma_scale": ("vision_sigma_scale", float),
