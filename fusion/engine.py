@@ -18,8 +18,10 @@ With ``record=True`` every step's prior, posterior and Jacobian are kept for the
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
+from operator import attrgetter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +36,8 @@ __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 #: Without a vision result for this long the bank rate decays with its lane-loss time constant
 #: (:attr:`fusion.ekf.NoiseModel.bank_rate_tau_no_vision_s`): three frames at 30 fps.
 _VISION_GAP_S = 0.1
+
+_time_of = attrgetter("t_s")
 
 
 @dataclass(frozen=True)
@@ -155,10 +159,12 @@ class FusionStream:
         self.counts["imu"] += 1
         if self._hist and sample.t <= self._hist[-1].t:
             raise ValueError(f"IMU sample at {sample.t:.6f} s is not after the previous one")
-        # Vision results whose time this sample passes are applied inside the interval.
-        ready = sorted((p for p in self._pending if p.t_s <= sample.t), key=lambda p: p.t_s)
-        if ready:
-            self._pending = [p for p in self._pending if p.t_s > sample.t]
+        # Vision results whose time this sample passes are applied inside the interval
+        # (the queue is kept in time order: the first k).
+        k = bisect.bisect_right(self._pending, sample.t, key=_time_of)
+        ready = self._pending[:k]
+        if k:
+            del self._pending[:k]
         self._process_sample(sample, visions=ready)
         self._hist.append(sample)
         while self._hist and sample.t - self._hist[0].t > self.options.history_s:
@@ -181,7 +187,7 @@ class FusionStream:
         item = VisionMeasurement(float(t_s), angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
                                  float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw)
         if not self._hist or item.t_s > self._hist[-1].t:
-            self._pending.append(item)   # the IMU has not reached it yet
+            bisect.insort_right(self._pending, item, key=_time_of)   # the IMU has not reached it yet
         else:
             self.counts["vision_late"] += 1
             self._apply_late(item)
@@ -247,9 +253,8 @@ class FusionStream:
         follow = t1 - t_fit > self.options.lane_fit_hold_s  # no lane fit: the road turns with the vehicle
         u = ImuStep(t1 - t0, gyro, follow, offset, vision_gap=t1 - self._last_vision_t > _VISION_GAP_S)
         roll0 = self.ekf.x[S.ROLL_W]
-        self.ekf.propagate(u)
+        self._road_rate = self.ekf.propagate(u)
         self._roll_prop += self.ekf.x[S.ROLL_W] - roll0
-        self._road_rate = self.ekf.road_turn_rate(u)
         if self.record:
             ekf = self.ekf
             self.steps.append(StepRecord(t1, ekf.F.copy(), ekf.x_prior.copy(), ekf.P_prior.copy(),
@@ -302,8 +307,8 @@ class FusionStream:
                                             n.bank_rate_preview_gain * abs(rate_ahead),
                                             n.bank_rate_preview_gain * abs(ekf.x[S.BANK_RATE])))
             if first:
-                self._pending.append(RollAhead(t + dt_ahead, float(angles[0]), float(m.sigmas_rad[0]), dt_ahead,
-                                               self._roll_prop))
+                bisect.insort_right(self._pending, RollAhead(t + dt_ahead, float(angles[0]), float(m.sigmas_rad[0]),
+                                                             dt_ahead, self._roll_prop), key=_time_of)
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
             # First frame: take yaw, bank and grade from it so that the filter starts consistent.
