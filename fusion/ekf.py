@@ -373,7 +373,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         q[S.CURVATURE] = n.curvature_walk_1_m_sqrt_s**2
         q[S.ROLL_W] = q[S.YAW_REL] = n.pitch_walk_rad_sqrt_s**2
         q[S.PITCH_W] = (n.pitch_walk_rad_sqrt_s if has_pitch_rate else n.no_pitch_rate_walk_rad_sqrt_s) ** 2
-        self._q_per_s = q
+        self._q_const = q
         self._q_scheduled = q.copy()   # with the bank-rate sigma of set_bank_rate_sigma
         self._bank_rate_scheduled = False
         self.last_d2 = math.nan
@@ -395,6 +395,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
         if sigma_rad_s is not None:
             self._q_scheduled[S.BANK_RATE] = 2.0 * sigma_rad_s**2 / self.noise.bank_rate_tau_s
 
+    def _q_per_s(self, u: ImuStep) -> np.ndarray:
+        """Diagonal process noise per second for this interval (the scheduled bank rate's while
+        the vision is there)."""
+        return self._q_scheduled if self._bank_rate_scheduled and not u.vision_gap else self._q_const
+
     def _bank_rate_tau(self, u: ImuStep) -> float:
         n = self.noise
         return min(n.bank_rate_tau_s, n.bank_rate_tau_no_vision_s) if u.vision_gap else n.bank_rate_tau_s
@@ -408,9 +413,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         """Jacobian ``F = I + A dt`` and process noise ``Q`` of one interval (:func:`_transition`)."""
         n = self.noise
         return _transition(self.x, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
-                           self._bank_rate_tau(u),
-                           self._q_scheduled if self._bank_rate_scheduled and not u.vision_gap else self._q_per_s,
-                           n.gyro_noise_rad_s**2,
+                           self._bank_rate_tau(u), self._q_per_s(u), n.gyro_noise_rad_s**2,
                            n.yaw_rel_walk_no_lanes_rad_sqrt_s**2)
 
     def predict(self, u: ImuStep = None) -> None:
@@ -425,10 +428,10 @@ class AttitudeEKF(ExtendedKalmanFilter):
         :meth:`predict`), in one compiled call: it runs once or twice per IMU sample. Returns
         the road's heading rate after the step (:meth:`road_turn_rate`)."""
         n = self.noise
-        q = self._q_scheduled if self._bank_rate_scheduled and not u.vision_gap else self._q_per_s
         self.x, self.P, self.F, self.Q, road_rate = _propagate(
             self.x, self.P, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
-            self._bank_rate_tau(u), q, n.gyro_noise_rad_s**2, n.yaw_rel_walk_no_lanes_rad_sqrt_s**2)
+            self._bank_rate_tau(u), self._q_per_s(u), n.gyro_noise_rad_s**2,
+            n.yaw_rel_walk_no_lanes_rad_sqrt_s**2)
         self.x_prior, self.P_prior = self.x.copy(), self.P.copy()
         return road_rate
 

@@ -21,8 +21,8 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from operator import attrgetter
 from dataclasses import dataclass, field
+from operator import attrgetter
 
 import numpy as np
 
