@@ -449,6 +449,10 @@ class AttitudeEKF(ExtendedKalmanFilter):
         """
         y = residual(z, hx)
         ok, d2, x, P, K, Sm, SI = _gated_update(self.x, self.P, y, H, R, self._gate[len(y)])
+        return self._accept(ok, d2, x, P, y, K, Sm, SI, z)
+
+    def _accept(self, ok, d2, x, P, y, K, Sm, SI, z) -> bool:
+        """Take a gated update's result: the state, and filterpy's attributes, when accepted."""
         self.last_d2 = d2
         if not ok:
             return False
@@ -573,14 +577,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         ok, d2, x, P, y, K, Sm, SI = _gravity_update(
             self.x, self.P, z, np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float),
             self.lever_arm_m, float(road_turn_rate_rad_s), self.has_pitch_rate, self._R_accel, self._gate[3])
-        self.last_d2 = d2
-        if not ok:
-            return False
-        self.x, self.P = x, P
-        self.y, self.S, self.SI, self.K, self.z = y, Sm, SI, K, z
-        self._log_likelihood = self._likelihood = self._mahalanobis = None
-        self.x_post, self.P_post = self.x, self.P
-        return True
+        return self._accept(ok, d2, x, P, y, K, Sm, SI, z)
 
     def update_speed(self, speed_m_s: float) -> bool:
         return self.gated_update_state(S.SPEED, speed_m_s, self.noise.speed_meas_m_s**2)
