@@ -507,25 +507,13 @@ class AttitudeEKF(ExtendedKalmanFilter):
         x_seen = self.x
         v = self.x[S.SPEED]
         lookahead = m.roll_lookahead_m if math.isfinite(m.roll_lookahead_m) and m.roll_lookahead_m > 0 else 0.0
-        if v > 1.0 and defer_roll:
-            # The twist in view is that of the road between the vehicle and the lookahead: its
-            # bank rate is taken as the mean of the rate here (state) and the mean rate over
-            # the stretch (``bank_rate_ahead``, from the vision roll ahead against the bank
-            # here). A known correction, not information on the bank rate: at a runoff's start
-            # the errors do not follow the uniform-twist model (measured: of either sign), and
-            # read as information they pulled the bank the wrong way by degrees.
-            H, hx = vision_jacobian(x_seen), vision_hx(x_seen)
-            per_twist = np.array([0.0, m.twist_m[0], m.twist_m[1]]) / v      # rad per rad/s of bank rate
-            rate = 0.5 * (self.x[S.BANK_RATE] + bank_rate_ahead)
-            hx = hx + per_twist * rate
-            sig = np.hypot(sig, n.vision_road_model_error * abs(rate) * np.abs(per_twist))
-        elif v > 1.0:
+        per_twist = np.array([0.0, m.twist_m[0], m.twist_m[1]]) / v if v > 1.0 else None  # rad per rad/s
+        if per_twist is not None and not defer_roll:
             dt_ahead = lookahead / v
             x_seen = self.x.copy()
             x_seen[S.BANK] += self.x[S.BANK_RATE] * dt_ahead
             H = vision_jacobian(x_seen)
             H[:, S.BANK_RATE] = H[:, S.BANK] * dt_ahead
-            per_twist = np.array([0.0, m.twist_m[0], m.twist_m[1]]) / v      # rad per rad/s of bank rate
             H[:, S.BANK_RATE] += per_twist
             hx = vision_hx(x_seen) + per_twist * self.x[S.BANK_RATE]
             if n.vision_road_model_error > 0.0:
@@ -533,6 +521,17 @@ class AttitudeEKF(ExtendedKalmanFilter):
                 sig = np.hypot(sig, n.vision_road_model_error * effect)
         else:
             H, hx = vision_jacobian(x_seen), vision_hx(x_seen)
+            if per_twist is not None:
+                # Deferred roll. The twist in view is that of the road between the vehicle and
+                # the lookahead: its bank rate is taken as the mean of the rate here (state) and
+                # the mean rate over the stretch (``bank_rate_ahead``, from the vision roll ahead
+                # against the bank here). A known correction, not information on the bank rate:
+                # at a runoff's start the errors do not follow the uniform-twist model
+                # (measured: of either sign), and read as information they pulled the bank the
+                # wrong way by degrees.
+                rate = 0.5 * (self.x[S.BANK_RATE] + bank_rate_ahead)
+                hx = hx + per_twist * rate
+                sig = np.hypot(sig, n.vision_road_model_error * abs(rate) * np.abs(per_twist))
         z = np.asarray(m.angles_rad, dtype=float)
         if defer_roll:
             z, H, hx, sig = z[1:], H[1:], hx[1:], sig[1:]

@@ -209,7 +209,7 @@ class FusionStream:
         results applied before in this interval (a replay), merged in time order; they do not
         defer their roll again."""
         new = {id(v) for v in visions}
-        visions = sorted((*visions, *replayed), key=lambda v: v.t_s) if replayed else visions
+        visions = sorted((*visions, *replayed), key=_time_of) if replayed else visions
         s.applied = tuple(visions)
         prev = prev if prev is not None else (self._hist[-1] if self._hist else None)
         if prev is None:
