@@ -12,6 +12,8 @@ import numpy as np
 import pandas as pd
 from scipy.stats import chi2
 
+from vision.frames import wrap_angle
+
 __all__ = ["ANGLES", "rmse_table", "interp_truth", "consistency", "Consistency"]
 
 #: Output angles compared with truth, as (column stem, truth column).
@@ -70,7 +72,7 @@ def consistency(fused: pd.DataFrame, truth: pd.DataFrame, cov: np.ndarray | None
     m = (t >= t_min_s) & np.all([np.isfinite(tr[f"{a}_deg"].to_numpy()) for a in angles], axis=0)
     e = np.radians(np.stack([fused[f"{a}_deg"].to_numpy(dtype=float) - tr[f"{a}_deg"].to_numpy()
                              for a in angles], axis=1))[m]
-    e = (e + math.pi) % (2 * math.pi) - math.pi
+    e = wrap_angle(e)
     sig = np.radians(np.stack([fused[f"{a}_sigma_deg"].to_numpy(dtype=float) for a in angles], axis=1))[m]
     if cov is None:
         nees = np.sum((e / sig) ** 2, axis=1)
