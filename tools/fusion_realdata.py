@@ -1,0 +1,144 @@
+"""The filter's gravity reference on real recordings, IMU only, against their own attitude truth.
+
+Usage::
+
+    .venv/bin/python tools/fusion_realdata.py [--kitti DRIVE_SYNC_FOLDER] [--comma SEGMENT] [--out DIR]
+
+* KITTI drive 0001 (default ``../shared/data/kitti_2011_09_26_drive_0001/2011_09_26_drive_0001_sync``):
+  the OXTS packets as the IMU (:func:`imu.oxts.read_oxts`), the OXTS INS attitude as truth.
+* comma2k19 (default ``../shared/data/comma2k19_rav4_segment``): the phone's IMU (100 Hz, axes
+  forward, right, down, turned into x forward, y left, z up) with the CAN wheel speed comma
+  decoded (held to the IMU times), and comma's offline INS/GNSS pose of the same device as
+  truth (``global_pose/frame_orientations``: device to ECEF, turned into roll and pitch relative
+  to the local level). The CAN's own IMU signals (yaw rate, two accelerations) lack the roll
+  rate the filter needs; this loader is the tool's, not the package's.
+
+Runs :func:`fusion.pipeline.fuse` without vision and prints, after the first 2 s, the RMS and
+largest error of the fused roll and pitch relative to level, next to the plain accelerometer
+tilt (no speed, no yaw rate) on the same samples, and the fused 1-sigma. ``--out`` also writes
+``<name>/fused.csv`` and the report (plots against the truth). Exit status 2 with a one-line
+error on bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+KITTI = DATA / "kitti_2011_09_26_drive_0001" / "2011_09_26_drive_0001_sync"
+COMMA = DATA / "comma2k19_rav4_segment"
+CONVERGED_S = 2.0
+_FRD_TO_FLU = np.array([1.0, -1.0, -1.0])
+
+
+def read_comma(segment: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The phone IMU with the CAN speed as the IMU table, and the device's INS roll and pitch."""
+    from scipy.spatial.transform import Rotation
+
+    from imu.errors import DecodeError
+    from imu.samples import COLUMNS, FRESH_COLUMNS
+
+    def load(name):
+        path = segment / name
+        if not path.is_file():
+            raise DecodeError(f"{path}: missing (a comma2k19 segment folder?)")
+        return np.load(path)
+
+    t, acc, gyr = load("processed_log/IMU/accelerometer/t"), load("processed_log/IMU/accelerometer/value"), \
+        load("processed_log/IMU/gyro/value")
+    ts, speed = load("processed_log/CAN/speed/t"), load("processed_log/CAN/speed/value")[:, 0]
+    if len(gyr) != len(t) or not np.array_equal(load("processed_log/IMU/gyro/t"), t):
+        raise DecodeError(f"{segment}: accelerometer and gyro samples are not at the same times")
+    keep = t > ts[0]
+    t, acc, gyr = t[keep], acc[keep] * _FRD_TO_FLU, gyr[keep] * _FRD_TO_FLU
+    k = np.searchsorted(ts, t) - 1            # the latest speed before each IMU sample
+    imu = pd.DataFrame({"t_s": t, "gyro_x_rad_s": gyr[:, 0], "gyro_y_rad_s": gyr[:, 1], "gyro_z_rad_s": gyr[:, 2],
+                        "accel_x_m_s2": acc[:, 0], "accel_y_m_s2": acc[:, 1], "accel_z_m_s2": acc[:, 2],
+                        "speed_m_s": speed[k]})
+    for c in FRESH_COLUMNS:
+        imu[c] = True
+    imu["fresh_speed"] = np.r_[True, np.diff(k) > 0]
+    # truth: device (forward, right, down) to ECEF, then to north-east-down at the start
+    tp, q, pos = load("global_pose/frame_times"), load("global_pose/frame_orientations"), \
+        load("global_pose/frame_positions")
+    x, y, z = pos[0]
+    lat, lon = math.atan2(z, math.hypot(x, y)), math.atan2(y, x)   # geocentric: 0.2 mdeg off the level
+    sl, cl, so, co = math.sin(lat), math.cos(lat), math.sin(lon), math.cos(lon)
+    R_ecef_from_ned = np.array([[-sl * co, -so, -cl * co], [-sl * so, co, -cl * so], [cl, 0.0, -sl]])
+    R_ned_from_dev = R_ecef_from_ned.T @ Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix()
+    yaw, pitch, roll = Rotation.from_matrix(R_ned_from_dev).as_euler("ZYX", degrees=True).T
+    # forward-right-down to forward-left-up: roll keeps its sign, pitch (nose up) flips
+    truth = pd.DataFrame({"t_s": tp, "roll_world_deg": roll, "pitch_world_deg": -pitch})
+    return imu[list(COLUMNS)], truth
+
+
+def table(name: str, imu: pd.DataFrame, truth: pd.DataFrame, out: Path | None, accel_bias_m_s2: float | None = None) -> None:
+    """Print the table of one recording (``accel_bias_m_s2``: the accelerometer-bias prior,
+    1-sigma; None keeps the filter's default for a calibrated IMU)."""
+    import dataclasses
+
+    from fusion.engine import FusionOptions
+    from fusion.metrics import interp_truth
+    from fusion.pipeline import fuse
+    from fusion.report import ReportInputs, write_report
+
+    options = FusionOptions()
+    if accel_bias_m_s2 is not None:
+        options = dataclasses.replace(options, noise=dataclasses.replace(options.noise, init_accel_bias_m_s2=accel_bias_m_s2))
+    run = fuse(imu, None, options=options)
+    f = run.fused
+    tr = interp_truth(truth, f["t_s"].to_numpy())
+    m = ((f["t_s"] >= f["t_s"].iloc[0] + CONVERGED_S) & tr["roll_world_deg"].notna()).to_numpy()
+    tilt = {"roll": np.degrees(np.arctan2(imu["accel_y_m_s2"], imu["accel_z_m_s2"])),
+            "pitch": np.degrees(np.arcsin(np.clip(-imu["accel_x_m_s2"] / 9.80665, -1.0, 1.0)))}
+    duration = f["t_s"].iloc[-1] - f["t_s"].iloc[0]
+    bias = options.noise.init_accel_bias_m_s2
+    print(f"\n{name}: {len(imu)} IMU samples, {duration:.1f} s, accelerometer-bias prior {bias} m/s^2; "
+          f"errors against its attitude truth after {CONVERGED_S:.0f} s, deg")
+    print("| angle | fused RMSE | fused mean | fused max | accelerometer tilt RMSE | fused 1-sigma (min-max) | error inside 2 sigma |")
+    print("|---|---|---|---|---|---|---|")
+    for ang in ("roll", "pitch"):
+        e = (f[f"{ang}_world_deg"] - tr[f"{ang}_world_deg"])[m].to_numpy()
+        et = (tilt[ang] - tr[f"{ang}_world_deg"])[m].to_numpy()
+        s = f[f"{ang}_world_sigma_deg"][m]
+        print(f"| {ang} (relative to level) | {np.sqrt(np.mean(e**2)):.3f} | {np.mean(e):+.3f} | {np.abs(e).max():.3f} | "
+              f"{np.sqrt(np.mean(et**2)):.3f} | {s.min():.2f}-{s.max():.2f} | {100 * np.mean(np.abs(e) < 2 * s):.0f} % |")
+    if out is not None:
+        d = out / name
+        d.mkdir(parents=True, exist_ok=True)
+        f.to_csv(d / "fused.csv", index=False, float_format="%.6f")
+        write_report(ReportInputs(fused=f, truth=truth, cov=run.cov, counts=run.counts, warnings=run.warnings,
+                                  title=f"{name}: IMU only"), d / "report")
+        print(f"wrote {d}/fused.csv and {d}/report/report.html")
+
+
+def main(argv=None) -> int:
+    from imu.errors import ImuError
+    from imu.oxts import read_oxts
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--kitti", type=Path, default=KITTI, help="KITTI *_sync folder (or its oxts)")
+    p.add_argument("--comma", type=Path, default=COMMA, help="comma2k19 segment folder")
+    p.add_argument("--out", type=Path, help="write <name>/fused.csv and the reports here")
+    args = p.parse_args(argv)
+    try:
+        table("kitti_oxts", *read_oxts(args.kitti), args.out)
+        comma = read_comma(args.comma)
+        table("comma2k19_phone_imu", *comma, args.out)
+        # a phone's MEMS accelerometer: a zero-g offset of tens of mg, not a calibrated unit's 3 mg
+        table("comma2k19_phone_imu_phone_prior", *comma, args.out, accel_bias_m_s2=0.2)
+    except ImuError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
