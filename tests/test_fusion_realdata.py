@@ -17,7 +17,7 @@ from conftest import shared_data_dir
 from fusion.metrics import interp_truth
 from fusion.pipeline import fuse
 from imu.errors import DecodeError
-from imu.oxts import read_oxts
+from imu import read_oxts
 
 DRIVE = shared_data_dir() / "kitti_2011_09_26_drive_0001" / "2011_09_26_drive_0001_sync"
 

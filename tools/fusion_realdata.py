@@ -121,7 +121,7 @@ def table(name: str, imu: pd.DataFrame, truth: pd.DataFrame, out: Path | None, a
 
 def main(argv=None) -> int:
     from imu.errors import ImuError
-    from imu.oxts import read_oxts
+    from imu import read_oxts
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--kitti", type=Path, default=KITTI, help="KITTI *_sync folder (or its oxts)")
