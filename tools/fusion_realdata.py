@@ -79,9 +79,11 @@ def read_comma(segment: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     return imu[list(COLUMNS)], truth
 
 
-def table(name: str, imu: pd.DataFrame, truth: pd.DataFrame, out: Path | None, accel_bias_m_s2: float | None = None) -> None:
+def table(name: str, imu: pd.DataFrame, truth: pd.DataFrame, out: Path | None, accel_bias_m_s2: float | None = None,
+          has_pitch_rate: bool = True) -> None:
     """Print the table of one recording (``accel_bias_m_s2``: the accelerometer-bias prior,
-    1-sigma; None keeps the filter's default for a calibrated IMU)."""
+    1-sigma; None keeps the filter's default for a calibrated IMU; ``has_pitch_rate=False``:
+    the pitch gyro left out, as on a Bosch MM5.10)."""
     import dataclasses
 
     from fusion.engine import FusionOptions
@@ -92,7 +94,9 @@ def table(name: str, imu: pd.DataFrame, truth: pd.DataFrame, out: Path | None, a
     options = FusionOptions()
     if accel_bias_m_s2 is not None:
         options = dataclasses.replace(options, noise=dataclasses.replace(options.noise, init_accel_bias_m_s2=accel_bias_m_s2))
-    run = fuse(imu, None, options=options)
+    if not has_pitch_rate:
+        imu = imu.assign(gyro_y_rad_s=np.nan)
+    run = fuse(imu, None, options=options, has_pitch_rate=has_pitch_rate)
     f = run.fused
     tr = interp_truth(truth, f["t_s"].to_numpy())
     m = ((f["t_s"] >= f["t_s"].iloc[0] + CONVERGED_S) & tr["roll_world_deg"].notna()).to_numpy()
@@ -100,7 +104,8 @@ def table(name: str, imu: pd.DataFrame, truth: pd.DataFrame, out: Path | None, a
             "pitch": np.degrees(np.arcsin(np.clip(-imu["accel_x_m_s2"] / 9.80665, -1.0, 1.0)))}
     duration = f["t_s"].iloc[-1] - f["t_s"].iloc[0]
     bias = options.noise.init_accel_bias_m_s2
-    print(f"\n{name}: {len(imu)} IMU samples, {duration:.1f} s, accelerometer-bias prior {bias} m/s^2; "
+    print(f"\n{name}: {len(imu)} IMU samples, {duration:.1f} s, accelerometer-bias prior {bias} m/s^2"
+          f"{'' if has_pitch_rate else ', no pitch gyro'}; "
           f"errors against its attitude truth after {CONVERGED_S:.0f} s, deg")
     print("| angle | fused RMSE | fused mean | fused max | accelerometer tilt RMSE | fused 1-sigma (min-max) | error inside 2 sigma |")
     print("|---|---|---|---|---|---|---|")
@@ -129,7 +134,9 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, help="write <name>/fused.csv and the reports here")
     args = p.parse_args(argv)
     try:
-        table("kitti_oxts", *read_oxts(args.kitti), args.out)
+        kitti = read_oxts(args.kitti)
+        table("kitti_oxts", *kitti, args.out)
+        table("kitti_oxts_no_pitch_gyro", *kitti, args.out, has_pitch_rate=False)
         comma = read_comma(args.comma)
         table("comma2k19_phone_imu", *comma, args.out)
         # a phone's MEMS accelerometer: a zero-g offset of tens of mg, not a calibrated unit's 3 mg
