@@ -181,13 +181,20 @@ class NoiseModel:
     init_bank_rad: float = math.radians(5.0)
     init_bank_rate_rad_s: float = math.radians(2.0)
     init_grade_rad: float = math.radians(3.0)
-    init_gyro_bias_rad_s: float = math.radians(0.5)
+    #: Gyro bias prior, 1-sigma: an uncalibrated MEMS gyro's turn-on offset (one value, or one
+    #: per axis).
+    init_gyro_bias_rad_s: float | tuple[float, float, float] = math.radians(0.5)
     init_speed_m_s: float = 2.0
     init_accel_m_s2: float = 2.0
     #: Accelerometer bias prior: what is left after calibration. The lateral part cannot be
     #: told from a bank offset (both shift f_y by g * angle), so it bounds the bank accuracy:
     #: 0.01 m/s^2 is 0.06 deg of bank.
     init_accel_bias_m_s2: float | tuple[float, float, float] = 0.03
+    #: The biases' prior means (vehicle frame): a calibration of this IMU, for instance from an
+    #: earlier drive (``vifusion run`` writes its end-of-drive estimates to ``calibration.toml``);
+    #: ``init_gyro_bias_rad_s`` and ``init_accel_bias_m_s2`` are then their uncertainty.
+    gyro_bias_prior_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    accel_bias_prior_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
     accel_bias_walk_m_s2_sqrt_s: float = 0.0005
     init_curvature_1_m: float = 0.01
     curvature_walk_1_m_sqrt_s: float = 0.002              # clothoids: ~0.005 1/m in 2 s
@@ -357,6 +364,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
         sig0[S.ACCEL_BIAS] = n.init_accel_bias_m_s2
         sig0[S.CURVATURE] = n.init_curvature_1_m
         self.x = np.zeros(DIM_X)
+        self.x[S.GYRO_BIAS] = n.gyro_bias_prior_rad_s
+        self.x[S.ACCEL_BIAS] = n.accel_bias_prior_m_s2
         self.P = np.diag(sig0**2)
         self._I = np.eye(DIM_X)
         self.F = np.eye(DIM_X)

@@ -197,7 +197,7 @@ class FusionStream:
     def _init_from_accel(self, s: _ImuSample) -> None:
         ekf = self.ekf
         v = s.speed if math.isfinite(s.speed) else 0.0  # the first wheel speed sets it properly
-        f, r = s.accel, s.gyro[2]
+        f, r = s.accel - ekf.x[S.ACCEL_BIAS], s.gyro[2] - ekf.x[S.GYRO_BIAS_Z]
         ekf.x[S.ROLL_W] = math.atan2(f[1] - v * r, f[2])
         ekf.x[S.PITCH_W] = math.asin(max(-1.0, min(1.0, -f[0] / 9.80665)))
         ekf.x[S.SPEED] = v

@@ -8,6 +8,10 @@ Every key is optional; units are in the names. Example::
     accel_noise_m_s2 = [0.15, 0.15, 0.6]
     accel_bias_sigma_m_s2 = 0.03     # residual after calibration (or one per axis); its lateral
                                      # part bounds the bank accuracy (0.01 m/s^2 = 0.06 deg)
+    gyro_bias_sigma_deg_s = 0.5      # turn-on offset (or one per axis)
+    accel_bias_m_s2 = [0, 0, 0]      # calibrated biases, vehicle frame (prior means; the
+    gyro_bias_deg_s = [0, 0, 0]      # sigmas above are their uncertainty): calibration.toml of
+                                     # an earlier run (fusion.calibration)
     camera_time_offset_s = 0.0       # added to frames.csv times
     estimate_time_offset = false     # estimate it from the data and use the estimate
     smooth = false                   # forward filter + RTS smoother (offline)
@@ -38,7 +42,6 @@ class RunSettings:
 _NOISE_KEYS = {
     "gyro_noise_deg_s": ("gyro_noise_rad_s", math.radians),
     "gyro_bias_walk_deg_s_sqrt_s": ("gyro_bias_walk_rad_s_sqrt_s", math.radians),
-    "gyro_bias_sigma_deg_s": ("init_gyro_bias_rad_s", math.radians),
     "accel_bias_walk_m_s2_sqrt_s": ("accel_bias_walk_m_s2_sqrt_s", float),
     "speed_noise_m_s": ("speed_meas_m_s", float),
     "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians),
@@ -65,10 +68,17 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
             lo = 0.0 if key != "gate_probability" else 0.5
             hi = None if key != "gate_probability" else 0.999999
             changes[name] = conv(t.get(key, "float", min=lo, max=hi))
-    if t.has("accel_bias_sigma_m_s2"):
-        v = t.data["accel_bias_sigma_m_s2"]
-        changes["init_accel_bias_m_s2"] = (t.get("accel_bias_sigma_m_s2", "floats", length=3, min=0.0)
-                                           if isinstance(v, list) else t.get("accel_bias_sigma_m_s2", "float", min=0.0))
+    for key, name, conv in (("accel_bias_sigma_m_s2", "init_accel_bias_m_s2", float),
+                            ("gyro_bias_sigma_deg_s", "init_gyro_bias_rad_s", math.radians)):
+        if t.has(key):   # one value, or one per axis
+            if isinstance(t.data[key], list):
+                changes[name] = tuple(conv(v) for v in t.get(key, "floats", length=3, min=0.0))
+            else:
+                changes[name] = conv(t.get(key, "float", min=0.0))
+    for key, name, conv in (("accel_bias_m_s2", "accel_bias_prior_m_s2", float),
+                            ("gyro_bias_deg_s", "gyro_bias_prior_rad_s", math.radians)):
+        if t.has(key):
+            changes[name] = tuple(conv(v) for v in t.get(key, "floats", length=3))
     if t.has("accel_noise_m_s2"):
         changes["accel_meas_m_s2"] = t.get("accel_noise_m_s2", "floats", length=3, min=1e-6)
     noise = replace(noise, **changes)

@@ -90,6 +90,10 @@ def outputs_table(t_s: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame
         "gyro_bias_z_deg_s": deg(X[:, S.GYRO_BIAS_Z]),
         "accel_bias_x_m_s2": X[:, S.ACCEL_BIAS][:, 0], "accel_bias_y_m_s2": X[:, S.ACCEL_BIAS][:, 1],
         "accel_bias_z_m_s2": X[:, S.ACCEL_BIAS][:, 2],
+        "gyro_bias_x_sigma_deg_s": deg(d[:, S.GYRO_BIAS_X]), "gyro_bias_y_sigma_deg_s": deg(d[:, S.GYRO_BIAS_Y]),
+        "gyro_bias_z_sigma_deg_s": deg(d[:, S.GYRO_BIAS_Z]),
+        "accel_bias_x_sigma_m_s2": d[:, S.ACCEL_BIAS][:, 0], "accel_bias_y_sigma_m_s2": d[:, S.ACCEL_BIAS][:, 1],
+        "accel_bias_z_sigma_m_s2": d[:, S.ACCEL_BIAS][:, 2],
         "speed_m_s": X[:, S.SPEED],
         "curvature_1_m": X[:, S.CURVATURE], "curvature_sigma_1_m": d[:, S.CURVATURE],
     }

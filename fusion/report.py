@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .calibration import calibration_table
 from .metrics import consistency, interp_truth, rmse_table
 
 __all__ = ["ReportInputs", "write_report", "summarise"]
@@ -47,6 +48,8 @@ def summarise(r: ReportInputs) -> dict:
                  "camera_time_offset_s": r.camera_time_offset_s}
     f = r.fused
     out["samples"] = int(len(f))
+    if len(f) and "gyro_bias_x_sigma_deg_s" in f:
+        out["imu_calibration"] = calibration_table(f)   # what calibration.toml holds
     out["duration_s"] = float(f["t_s"].iloc[-1] - f["t_s"].iloc[0]) if len(f) else 0.0
     if r.truth is not None and len(f):
         t0 = float(f["t_s"].iloc[0]) + CONVERGENCE_S

@@ -61,6 +61,9 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
     assert np.isfinite(fused[["roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_sigma_deg"]].to_numpy()).all()
     summary = json.loads((out / "report" / "summary.json").read_text())
     assert "rmse_deg" in summary and "fused" in summary["rmse_deg"]
+    assert set(summary["imu_calibration"]) == {"gyro_bias_deg_s", "gyro_bias_sigma_deg_s", "accel_bias_m_s2",
+                                               "accel_bias_sigma_m_s2"}
+    assert (out / "calibration.toml").is_file()
     html = (out / "report" / "report.html").read_text()
     assert "data:image/png;base64" in html
     for png in ("attitude.png", "world.png", "errors.png", "biases.png"):
@@ -97,6 +100,29 @@ def test_shipped_sample_drive_is_what_the_simulator_makes(tmp_path):
         num = a.select_dtypes("number").columns
         np.testing.assert_allclose(a[num].to_numpy(), b[num].to_numpy(), rtol=0.0, atol=1e-6, err_msg=f)
         assert a.drop(columns=num).equals(b.drop(columns=num)), f
+
+
+def test_calibration_written_and_read_back(drive, tmp_path):
+    """Every run writes its end-of-drive IMU biases (calibration.toml); ``--calibration`` starts
+    the next run from them: its first sample's biases are the file's, within a tenth of their
+    sigma (one IMU sample's update moves them that little)."""
+    r = vifusion("run", "--drive", drive, "--out", tmp_path / "a", "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    cal = tmp_path / "a" / "calibration.toml"
+    from fusion.calibration import read_calibration
+
+    values = read_calibration(cal)
+    r = vifusion("run", "--drive", drive, "--out", tmp_path / "b", "--quiet", "--no-report", "--calibration", cal)
+    assert r.returncode == 0, r.stderr
+    first = pd.read_csv(tmp_path / "b" / "fused.csv").iloc[0]
+    for i, a in enumerate("xyz"):
+        assert abs(first[f"gyro_bias_{a}_deg_s"] - values["gyro_bias_deg_s"][i]) < 0.1 * values["gyro_bias_sigma_deg_s"][i]
+        assert abs(first[f"accel_bias_{a}_m_s2"] - values["accel_bias_m_s2"][i]) < 0.1 * values["accel_bias_sigma_m_s2"][i]
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[fusion]\naccel_bias_m_s2 = 0.1\n")
+    one_line_error(vifusion("run", "--drive", drive, "--out", tmp_path / "c", "--calibration", bad),
+                   "bad.toml", "accel_bias_m_s2")
+    assert not (tmp_path / "c").exists() and not (tmp_path / "c.partial").exists()
 
 
 def test_missing_file(drive, tmp_path):

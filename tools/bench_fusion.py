@@ -10,6 +10,8 @@ runs the whole ``vifusion run`` as a user would (a subprocess, timed), then prin
 
 * RMSE against truth after 2 s of convergence: fused (forward filter and RTS smoother), vision
   alone, the plain bank of Damon et al. 2018 (IMU-only roll minus vision roll);
+* a campaign with one IMU: the 20 s drives again, started from the ``calibration.toml`` (IMU
+  biases) that the 60 s drive's run wrote (``vifusion run --calibration``);
 * how the vision's errors follow the road's twist in superelevation runoffs, measured against
   the model the estimator reports to the filter (``roll_lookahead_m``, ``*_per_twist_m``);
 * the share of samples whose NEES of (roll, pitch, yaw, bank) lies in its 95 % chi-square band;
@@ -203,6 +205,18 @@ def main(argv=None) -> int:
         fixed = wall - (tm.get("vision", 0.0) + tm.get("CAN decode", 0.0) + tm.get("fusion", 0.0))
         speed_rows.append((name, dur, wall, fixed, filter_rate(drive), live_cost_us(drive)))
         shutil.rmtree(drive.parent / (drive.name + "-run-smooth"), ignore_errors=True)
+    # A campaign with one IMU: the single-curve drives started from the IMU biases the drive with
+    # curves both ways ended with (fusion.calibration).
+    campaign_rows = []
+    if "banked_curves_60s" in names:
+        first = cached_full_drive("banked_curves_60s")
+        cal = first.parent / (first.name + "-run") / "calibration.toml"
+        for name in names[1:]:
+            drive = cached_full_drive(name)
+            out = drive.parent / (drive.name + "-run-calibrated")
+            _, summ_c = run_cli(drive, out, "--calibration", str(cal))
+            campaign_rows.append((name, summ_c["rmse_deg"]["fused"], summ_c["consistency"]["fraction_inside"]))
+            shutil.rmtree(out, ignore_errors=True)
 
     print("RMSE against truth after 2 s [deg]   (bars of issue 5: roll/pitch 0.15, yaw 0.1, bank 0.3)")
     head = f"{'drive':<26} {'source':<22} {'roll':>7} {'pitch':>7} {'yaw':>7} {'bank':>7}"
@@ -213,6 +227,12 @@ def main(argv=None) -> int:
                             ("IMU - vision (2018)", acc.get("imu_minus_vision", {}))):
             cells = " ".join(f"{vals[a]:7.3f}" if a in vals else f"{'':7}" for a in ("roll", "pitch", "yaw", "bank"))
             print(f"{name:<26} {label:<22} {cells}")
+    if campaign_rows:
+        print()
+        print("Campaign: started from the IMU calibration the banked_curves_60s run wrote (same IMU), forward filter")
+        for name, vals, nees in campaign_rows:
+            cells = " ".join(f"{vals[a]:7.3f}" for a in ("roll", "pitch", "yaw", "bank"))
+            print(f"{name:<26} {'fused, calibrated':<22} {cells}   NEES in band {100 * nees:.1f}%")
     print()
     print(f"{'drive':<26} {'NEES in 95% band fwd':>22} {'smoothed':>10} {'lane loss: max roll err':>24} {'recovery':>10}")
     for name, _, _, nees_f, nees_s, loss_max, recover in rows:

@@ -35,6 +35,8 @@ def add_parser(sub) -> None:
     p.add_argument("--truth", type=Path, help="truth.csv to compare with (simulated drives)")
     p.add_argument("--out", type=Path, default=Path("out/run"), help="output folder (default out/run)")
     p.add_argument("--smooth", action="store_true", help="forward filter plus RTS smoother (offline)")
+    p.add_argument("--calibration", type=Path,
+                   help="calibration.toml of an earlier run of this IMU: start from its bias estimates")
     p.add_argument("--estimate-time-offset", action="store_true",
                    help="estimate the camera-to-CAN clock offset from the data and apply it")
     p.add_argument("--debug-video", type=Path, help="also write the vision debug video here")
@@ -77,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from vision.options import options_from_table
     from vision.video import default_workers, estimate_video
 
+    from ..calibration import read_calibration, write_calibration
     from ..config import load_config
     from ..drive import check_overlap, read_frame_times, read_truth
     from ..errors import ConfigError, InputError
@@ -97,7 +100,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{files.config}: [can] is missing (the CAN signals of the IMU)")
     mapping = cfg.can if files.dbc is None else type(cfg.can)(**{**cfg.can.__dict__, "dbc_path": files.dbc})
     vision_opts = options_from_table(cfg.extra.get("vision"), str(files.config))
-    fusion_opts, settings = fusion_options_from_table(cfg.extra.get("fusion"), str(files.config))
+    fusion_table, fusion_source = cfg.extra.get("fusion") or {}, str(files.config)
+    if args.calibration is not None:
+        fusion_table = {**fusion_table, **read_calibration(args.calibration)}
+        fusion_source += f" with {args.calibration}"
+    fusion_opts, settings = fusion_options_from_table(fusion_table, fusion_source)
     smooth = args.smooth or settings.smooth
     offset_s = settings.camera_time_offset_s
     truth = read_truth(files.truth)
@@ -163,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
     timings["fusion"] = time.perf_counter() - t0
     warnings += fused.warnings
     _write_csv(table, tmp / "fused.csv")
+    write_calibration(fused.fused, tmp / "calibration.toml", f"{files.can_log} ({'smoothed' if smooth else 'forward filter'})")
 
     summary_out = None
     if not args.no_report:
@@ -197,7 +205,8 @@ def _write_csv(df, path: Path) -> None:
 
 def _print_summary(out, files, frames, imu, timings, warnings, summary, time_offset, total_s) -> None:
     drive_s = float(frames["t_s"].iloc[-1] - frames["t_s"].iloc[0]) if len(frames) > 1 else math.nan
-    print(f"wrote {out}/vision.csv, {out}/fused.csv" + ("" if summary is None else f", {out}/report/report.html"))
+    print(f"wrote {out}/vision.csv, {out}/fused.csv, {out}/calibration.toml"
+          + ("" if summary is None else f", {out}/report/report.html"))
     fixed = timings.get("start-up", 0.0) + timings.get("report", 0.0)
     per_drive = total_s - fixed
     print(f"time: total {total_s:.1f} s for a {drive_s:.1f} s drive; fixed costs {fixed:.1f} s "

@@ -1,0 +1,90 @@
+"""The IMU's biases carried from one drive to the next: bank campaigns with one vehicle.
+
+At constant speed the lateral accelerometer bias cannot be told from a bank offset (both shift
+the lateral specific force by ``g`` times an angle: 0.04 m/s^2 is 0.23 deg of bank), and the
+yaw-rate bias is learnt only slowly, from the heading against the lane curvature (0.1 deg/s is
+0.22 deg of bank at 22 m/s, through the centripetal term). A 20 s drive through one banked
+curve cannot resolve them; a drive with curves both ways can, and the IMU is the same on every
+drive of a campaign. ``vifusion run`` writes its end-of-drive bias estimates with their 1-sigma
+(the filter's covariance at the last sample; the smoother's equals it there) to
+``calibration.toml``::
+
+    [fusion]
+    gyro_bias_deg_s = [0.2014, 0.1499, -0.3167]
+    gyro_bias_sigma_deg_s = [0.0105, 0.0107, 0.0171]
+    accel_bias_m_s2 = [0.0462, 0.0215, -0.0137]
+    accel_bias_sigma_m_s2 = [0.0174, 0.019, 0.0112]
+
+and ``vifusion run --calibration FILE`` starts the next drive from it (the keys override the
+config's ``[fusion]``; they can also be written there). The sigmas are the filter's at the end
+of the drive: if the IMU was switched off in between, add its turn-on repeatability (datasheet)
+before reusing them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import pandas as pd
+
+from .config import Table, read_toml
+from .errors import ConfigError
+
+__all__ = ["CALIBRATION_KEYS", "calibration_table", "write_calibration", "read_calibration"]
+
+#: The ``[fusion]`` keys of a calibration (vehicle frame).
+CALIBRATION_KEYS = ("gyro_bias_deg_s", "gyro_bias_sigma_deg_s", "accel_bias_m_s2", "accel_bias_sigma_m_s2")
+
+
+def calibration_table(fused: pd.DataFrame) -> dict[str, list[float]]:
+    """The bias estimates and their 1-sigma at the last sample of a fused table, as ``[fusion]``
+    keys (``gyro_bias_*_deg_s``, ``accel_bias_*_m_s2`` and their ``*_sigma_*`` columns)."""
+    last = fused.iloc[-1]
+    out = {
+        "gyro_bias_deg_s": [float(last[f"gyro_bias_{a}_deg_s"]) for a in "xyz"],
+        "gyro_bias_sigma_deg_s": [float(last[f"gyro_bias_{a}_sigma_deg_s"]) for a in "xyz"],
+        "accel_bias_m_s2": [float(last[f"accel_bias_{a}_m_s2"]) for a in "xyz"],
+        "accel_bias_sigma_m_s2": [float(last[f"accel_bias_{a}_sigma_m_s2"]) for a in "xyz"],
+    }
+    bad = [k for k, v in out.items() if not all(math.isfinite(x) for x in v)]
+    if bad:
+        raise ValueError(f"the fused table's last sample has no finite {bad[0]}")
+    return out
+
+
+def write_calibration(fused: pd.DataFrame, path: str | Path, source: str = "") -> dict[str, list[float]]:
+    """Write :func:`calibration_table` as TOML (under a temporary name, then renamed)."""
+    table = calibration_table(fused)
+    path = Path(path)
+    lines = ["# IMU biases at the end of a vifusion run (vehicle frame); start the next drive of this IMU",
+             "# from them with `vifusion run --calibration " + path.name + "`."]
+    if source:
+        lines.append(f"# from: {source}")
+    lines.append("[fusion]")
+    lines += [f"{k} = [{', '.join(f'{x:.6g}' for x in v)}]" for k, v in table.items()]
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text("\n".join(lines) + "\n")
+    os.replace(tmp, path)
+    return table
+
+
+def read_calibration(path: str | Path) -> dict:
+    """The ``[fusion]`` keys of a calibration file, checked: only :data:`CALIBRATION_KEYS`, each
+    three numbers, sigmas positive. Errors are one-line :class:`fusion.errors.ConfigError` naming
+    the file and key."""
+    data = read_toml(path)
+    extra = sorted(set(data) - {"fusion"})
+    if extra:
+        raise ConfigError(f"{path}: [{extra[0]}] does not belong in a calibration file (only [fusion])")
+    t = Table(data.get("fusion", {}), "fusion", str(path))
+    out = {}
+    for key in CALIBRATION_KEYS:
+        value = t.get(key, "floats", None, length=3, min=1e-9 if "sigma" in key else None)
+        if value is not None:
+            out[key] = list(value)
+    t.done()
+    if not out:
+        raise ConfigError(f"{path}: [fusion] has none of {', '.join(CALIBRATION_KEYS)}")
+    return out
