@@ -196,6 +196,15 @@ def _table_html(summary: dict) -> str:
                     f"[{c['band'][0]:.2f}, {c['band'][1]:.2f}] ({100 * c['fraction_above']:.1f} % above, "
                     f"{100 * c['fraction_below']:.1f} % below); mean NEES {c['mean_nees']:.2f} "
                     f"(expected {c['dof']}).</p>")
+    cal = summary.get("imu_calibration")
+    if cal:
+        rows.append("<h2>IMU biases at the end (calibration.toml), vehicle frame, 1-sigma</h2><table>"
+                    "<tr><th></th><th>x</th><th>y</th><th>z</th></tr>")
+        for label, key, unit in (("gyro", "gyro_bias_deg_s", "deg/s"), ("accelerometer", "accel_bias_m_s2", "m/s^2")):
+            sig = cal[key.replace("_bias_", "_bias_sigma_")]
+            cells = "".join(f"<td>{v:+.4f} &plusmn; {s:.4f}</td>" for v, s in zip(cal[key], sig))
+            rows.append(f"<tr><td>{label} [{unit}]</td>{cells}</tr>")
+        rows.append("</table>")
     rows.append("<h2>Run</h2><table>")
     for k, v in summary.get("counts", {}).items():
         rows.append(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>")
