@@ -182,3 +182,30 @@ def test_corrupt_can_log(copy, tmp_path):
     (copy / "can.asc").write_bytes(b"\x00\xff garbage\n" * 50)
     r = vifusion("run", "--drive", copy, "--out", tmp_path / "out")
     assert r.returncode == 2 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_campaign_carries_the_calibration_and_skips_a_bad_drive(drive, tmp_path):
+    """``vifusion campaign``: drives in order, each started from the previous good one's
+    calibration.toml; a missing drive is a counted, reported skip (its reason in the table and
+    one line on stderr), not the end of the campaign; all drives bad: exit status 2."""
+    second = tmp_path / "second"
+    shutil.copytree(drive, second)
+    out = tmp_path / "camp"
+    r = vifusion("campaign", drive, tmp_path / "missing", second, "--out", out, "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    assert [line for line in r.stderr.splitlines() if not line.startswith("WARNING")] == \
+        [f"warning: {tmp_path / 'missing'} skipped: {tmp_path / 'missing'}: no such drive folder"], r.stderr
+    table = pd.read_csv(out / "campaign.csv")
+    assert list(table["status"]) == ["ok", f"skipped: {tmp_path / 'missing'}: no such drive folder", "ok"]
+    assert table["calibration_from"].fillna("").tolist() == ["", str(out / "drive" / "calibration.toml"),
+                                                             str(out / "drive" / "calibration.toml")]
+    assert pd.read_parquet(out / "campaign.parquet").shape == table.shape
+    # the second drive started where the first ended (one sample's update moves the biases little)
+    first_end = pd.read_csv(out / "drive" / "fused.csv").iloc[-1]
+    second_start = pd.read_csv(out / "second" / "fused.csv").iloc[0]
+    for c in ("gyro_bias_z_deg_s", "accel_bias_y_m_s2"):
+        sig = first_end[c.replace("_bias_z_", "_bias_z_sigma_").replace("_bias_y_", "_bias_y_sigma_")]
+        assert abs(second_start[c] - first_end[c]) < 0.1 * sig, c
+    r = vifusion("campaign", tmp_path / "missing", "--out", tmp_path / "none", "--quiet")
+    assert r.returncode == 2 and r.stderr.strip().splitlines()[-1] == "error: no drive of the campaign could be run"
+    assert "Traceback" not in r.stderr

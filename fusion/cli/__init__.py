@@ -41,7 +41,7 @@ from ..errors import FusionError
 __all__ = ["main", "USER_ERRORS"]
 
 #: Subcommands, in the order ``vifusion --help`` lists them.
-SUBCOMMANDS = ("run", "vision", "can", "simulate")
+SUBCOMMANDS = ("run", "campaign", "vision", "can", "simulate")
 
 #: Exceptions that mean bad input rather than a bug: reported in one line, exit status 2.
 USER_ERRORS = (FusionError, ImuError, VisionError, FileNotFoundError, PermissionError, IsADirectoryError)

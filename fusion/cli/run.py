@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
 
     from . import STARTED_S
 
-    t_start = STARTED_S
+    t_start = getattr(args, "started_s", STARTED_S)   # a campaign starts each drive's clock anew
     timings: dict[str, float] = {}
     warnings: list[str] = []
     progress = not args.quiet

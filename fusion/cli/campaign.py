@@ -1,0 +1,129 @@
+"""``vifusion campaign DRIVE... --out DIR``: a bank campaign, drive after drive with one IMU.
+
+Each drive is a ``vifusion run --drive`` into ``DIR/<drive name>/``, started from the IMU biases
+the previous good drive ended with (its ``calibration.toml``, :mod:`fusion.calibration`): at
+constant speed one curve cannot tell the lateral accelerometer bias from bank, a campaign's
+drives together can. ``DIR/campaign.csv`` (and ``.parquet``) has one row per drive: status,
+where its calibration came from, the fused bank's statistics, the RMSE against truth when the
+drive has one, and the biases it ended with. A drive that fails (missing files, bad config) is
+skipped with its one-line reason in the table and on stderr, and the next drive starts from
+the last good calibration; the exit status is 2 when no drive succeeded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+from . import workers_arg
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "campaign",
+        help="run several drives of one vehicle in order, carrying the IMU calibration",
+        description="Run drives (folders as 'vifusion simulate' writes them) one after the other, each "
+        "started from the IMU biases the previous one ended with; a table of all drives.",
+    )
+    p.add_argument("drives", nargs="+", type=Path, help="drive folders, in the order to run them")
+    p.add_argument("--out", type=Path, required=True, help="output folder: one sub-folder per drive, campaign.csv")
+    p.add_argument("--calibration", type=Path, help="calibration.toml to start the first drive from")
+    p.add_argument("--no-carry", action="store_true", help="run every drive on its own (no calibration carried)")
+    p.add_argument("--smooth", action="store_true", help="forward filter plus RTS smoother (offline)")
+    p.add_argument("--no-report", action="store_true", help="skip the per-drive plots and HTML")
+    p.add_argument("--workers", type=workers_arg, default=None, help="vision processes (default: the cores available)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import pandas as pd
+
+    from ..calibration import calibration_table
+    from . import USER_ERRORS, _one_line
+    from . import run as run_cmd
+
+    names = [d.name for d in args.drives]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        from ..errors import InputError
+
+        raise InputError(f"two drives named {dup[0]}: their outputs would share {args.out / dup[0]}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    calibration = args.calibration
+    rows = []
+    for drive in args.drives:
+        out = args.out / drive.name
+        run_args = argparse.Namespace(
+            drive=drive, video=None, frames=None, can=None, dbc=None, config=None, truth=None, out=out,
+            smooth=args.smooth, calibration=calibration, estimate_time_offset=False, debug_video=None,
+            no_report=args.no_report, workers=args.workers, quiet=args.quiet, debug=False,
+            started_s=time.perf_counter())
+        row = {"drive": str(drive), "calibration_from": str(calibration) if calibration else ""}
+        print(f"== {drive}" + (f" (from {calibration})" if calibration else ""))
+        try:
+            log = io.StringIO()
+            with contextlib.redirect_stdout(log):
+                run_cmd.run(run_args)
+        except USER_ERRORS as e:
+            reason = _one_line(e)
+            print(f"warning: {drive} skipped: {reason}", file=sys.stderr)
+            rows.append({**row, "status": f"skipped: {reason}"})
+            continue
+        fused = pd.read_csv(out / "fused.csv")
+        row.update(status="ok", **_drive_row(fused, out))
+        rows.append(row)
+        if not args.no_carry:
+            calibration = out / "calibration.toml"
+        cal = calibration_table(fused)
+        print(f"   bank mean {row['bank_mean_deg']:+.2f} deg, |max| {row['bank_abs_max_deg']:.2f} deg"
+              + (f", RMSE vs truth {row['bank_rmse_deg']:.3f} deg" if "bank_rmse_deg" in row else "")
+              + f"; lateral accelerometer bias {cal['accel_bias_m_s2'][1]:+.4f} +- {cal['accel_bias_sigma_m_s2'][1]:.4f} m/s^2")
+    table = pd.DataFrame(rows)
+    _write_tables(table, args.out / "campaign")
+    ok = int((table["status"] == "ok").sum())
+    print(f"wrote {args.out}/campaign.csv and campaign.parquet: {ok} of {len(table)} drives done")
+    if ok == 0:
+        print("error: no drive of the campaign could be run", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _drive_row(fused, out: Path) -> dict:
+    """Bank statistics, the RMSE against truth when the run had one, the final biases."""
+    import numpy as np
+
+    bank = fused["bank_deg"].to_numpy()
+    row = {"duration_s": float(fused["t_s"].iloc[-1] - fused["t_s"].iloc[0]),
+           "bank_mean_deg": float(np.mean(bank)), "bank_abs_max_deg": float(np.max(np.abs(bank))),
+           "bank_sigma_median_deg": float(np.median(fused["bank_sigma_deg"]))}
+    summary = out / "report" / "summary.json"
+    if summary.is_file():
+        fusedrmse = json.loads(summary.read_text()).get("rmse_deg", {}).get("fused", {})
+        for a in ("roll", "pitch", "yaw", "bank"):
+            if a in fusedrmse and math.isfinite(fusedrmse[a]):
+                row[f"{a}_rmse_deg"] = fusedrmse[a]
+    last = fused.iloc[-1]
+    for c in fused.columns:
+        if c.startswith(("gyro_bias_", "accel_bias_")):
+            row[c] = float(last[c])
+    return row
+
+
+def _write_tables(table, stem: Path) -> None:
+    import os
+
+    for suffix, write in ((".csv", lambda p: table.to_csv(p, index=False, float_format="%.6g")),
+                          (".parquet", lambda p: table.to_parquet(p, index=False))):
+        path = stem.with_suffix(suffix)
+        tmp = path.with_name(path.name + ".partial")
+        write(tmp)
+        os.replace(tmp, path)
