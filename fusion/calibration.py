@@ -27,12 +27,15 @@ import math
 import os
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from .config import Table, read_toml
+from .ekf import S
 from .errors import ConfigError
 
-__all__ = ["CALIBRATION_KEYS", "calibration_table", "write_calibration", "read_calibration"]
+__all__ = ["CALIBRATION_KEYS", "calibration_table", "calibration_from_state", "write_calibration",
+           "read_calibration"]
 
 #: The ``[fusion]`` keys of a calibration (vehicle frame).
 CALIBRATION_KEYS = ("gyro_bias_deg_s", "gyro_bias_sigma_deg_s", "accel_bias_m_s2", "accel_bias_sigma_m_s2")
@@ -54,9 +57,18 @@ def calibration_table(fused: pd.DataFrame) -> dict[str, list[float]]:
     return out
 
 
-def write_calibration(fused: pd.DataFrame, path: str | Path, source: str = "") -> dict[str, list[float]]:
-    """Write :func:`calibration_table` as TOML (under a temporary name, then renamed)."""
-    table = calibration_table(fused)
+def calibration_from_state(x: np.ndarray, P: np.ndarray) -> dict[str, list[float]]:
+    """The same keys from a filter state and covariance (:class:`fusion.ekf.AttitudeEKF` ``x, P``):
+    what an embedded filter saves when it stops (:meth:`fusion.realtime.LiveFusion.calibration`)."""
+    d = np.sqrt(np.maximum(np.diag(P), 0.0))
+    return {"gyro_bias_deg_s": np.degrees(x[S.GYRO_BIAS]).tolist(),
+            "gyro_bias_sigma_deg_s": np.degrees(d[S.GYRO_BIAS]).tolist(),
+            "accel_bias_m_s2": x[S.ACCEL_BIAS].tolist(), "accel_bias_sigma_m_s2": d[S.ACCEL_BIAS].tolist()}
+
+
+def write_calibration(table: dict[str, list[float]], path: str | Path, source: str = "") -> None:
+    """Write a calibration (:func:`calibration_table`, :func:`calibration_from_state`) as TOML,
+    under a temporary name, then renamed."""
     path = Path(path)
     lines = ["# IMU biases at the end of a vifusion run (vehicle frame); start the next drive of this IMU",
              "# from them with `vifusion run --calibration " + path.name + "`."]
@@ -67,7 +79,6 @@ def write_calibration(fused: pd.DataFrame, path: str | Path, source: str = "") -
     tmp = path.with_name(path.name + ".partial")
     tmp.write_text("\n".join(lines) + "\n")
     os.replace(tmp, path)
-    return table
 
 
 def read_calibration(path: str | Path) -> dict:

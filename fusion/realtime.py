@@ -14,6 +14,7 @@ Example (a live bus; ``frames`` yields (capture time on the bus clock, image))::
         ...
         live.push_frame(t_s, image)       # whenever a frame has been captured
         est = live.estimate()             # Estimate with 1-sigma, rad
+    write_calibration(live.calibration(), "calibration.toml")   # when the vehicle stops
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from imu import StreamDecoder
 from vision.estimator import Estimator, VisionEstimate
 from vision.options import options_from_table
 
+from .calibration import calibration_from_state
 from .config import DriveConfig
 from .engine import Estimate, FusionStream
 from .errors import ConfigError
@@ -77,3 +79,9 @@ class LiveFusion:
     def estimate(self) -> Estimate:
         """The latest estimate (after the newest IMU sample), with 1-sigma."""
         return self.stream.estimate()
+
+    def calibration(self) -> dict[str, list[float]]:
+        """The IMU biases now, with 1-sigma, as the ``[fusion]`` keys of a calibration: save them
+        when the vehicle stops (``fusion.calibration.write_calibration``) and start the next
+        drive from them (``[fusion]`` of the config, or ``vifusion run --calibration``)."""
+        return calibration_from_state(self.stream.ekf.x, self.stream.ekf.P)

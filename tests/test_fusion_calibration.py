@@ -57,9 +57,8 @@ def test_the_next_drive_starts_from_the_calibration(campaign):
 
 def test_calibration_file_round_trip_and_bad_files(campaign, tmp_path):
     _, cal = campaign
-    fused = _fused_with(cal)
     path = tmp_path / "calibration.toml"
-    write_calibration(fused, path, "test")
+    write_calibration(calibration_table(_fused_with(cal)), path, "test")
     back = read_calibration(path)
     for k, v in cal.items():
         np.testing.assert_allclose(back[k], v, rtol=1e-5)

@@ -56,3 +56,9 @@ def test_live_fusion_equals_the_offline_run(drive):
     for name in ("roll", "pitch", "yaw", "bank", "roll_world"):
         assert np.degrees(getattr(est, f"{name}_rad")) == pytest.approx(last[f"{name}_deg"], abs=1e-6), name
     assert np.degrees(est.roll_sigma_rad) == pytest.approx(last["roll_sigma_deg"], abs=1e-6)
+    # what the embedded filter would save at the end of the drive is the offline run's calibration
+    from fusion.calibration import calibration_table
+
+    saved, offline_cal = live.calibration(), calibration_table(offline)
+    for key, values in offline_cal.items():
+        np.testing.assert_allclose(saved[key], values, atol=1e-9, err_msg=key)

@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from vision.options import options_from_table
     from vision.video import default_workers, estimate_video
 
-    from ..calibration import read_calibration, write_calibration
+    from ..calibration import calibration_table, read_calibration, write_calibration
     from ..config import load_config
     from ..drive import check_overlap, read_frame_times, read_truth
     from ..errors import ConfigError, InputError
@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     timings["fusion"] = time.perf_counter() - t0
     warnings += fused.warnings
     _write_csv(table, tmp / "fused.csv")
-    write_calibration(fused.fused, tmp / "calibration.toml", f"{files.can_log} ({'smoothed' if smooth else 'forward filter'})")
+    write_calibration(calibration_table(fused.fused), tmp / "calibration.toml", f"{files.can_log} ({'smoothed' if smooth else 'forward filter'})")
 
     summary_out = None
     if not args.no_report:
