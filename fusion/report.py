@@ -4,6 +4,7 @@ table, PNG files and one self-contained HTML page (images embedded)."""
 from __future__ import annotations
 
 import base64
+import contextlib
 import html
 import io
 import json
@@ -49,7 +50,8 @@ def summarise(r: ReportInputs) -> dict:
     f = r.fused
     out["samples"] = int(len(f))
     if len(f) and "gyro_bias_x_sigma_deg_s" in f:
-        out["imu_calibration"] = calibration_table(f)   # what calibration.toml holds
+        with contextlib.suppress(ValueError):   # none when the biases ended non-finite (a warning of the run)
+            out["imu_calibration"] = calibration_table(f)   # what calibration.toml holds
     out["duration_s"] = float(f["t_s"].iloc[-1] - f["t_s"].iloc[0]) if len(f) else 0.0
     if r.truth is not None and len(f):
         t0 = float(f["t_s"].iloc[0]) + CONVERGENCE_S

@@ -47,7 +47,7 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
-    from ..calibration import calibration_table
+    from ..calibration import read_calibration
     from . import USER_ERRORS, _one_line
     from . import run as run_cmd
 
@@ -81,12 +81,18 @@ def run(args: argparse.Namespace) -> int:
         fused = pd.read_csv(out / "fused.csv")
         row.update(status="ok", **_drive_row(fused, out))
         rows.append(row)
-        if not args.no_carry:
-            calibration = out / "calibration.toml"
-        cal = calibration_table(fused)
-        print(f"   bank mean {row['bank_mean_deg']:+.2f} deg, |max| {row['bank_abs_max_deg']:.2f} deg"
-              + (f", RMSE vs truth {row['bank_rmse_deg']:.3f} deg" if "bank_rmse_deg" in row else "")
-              + f"; lateral accelerometer bias {cal['accel_bias_m_s2'][1]:+.4f} +- {cal['accel_bias_sigma_m_s2'][1]:.4f} m/s^2")
+        line = (f"   bank mean {row['bank_mean_deg']:+.2f} deg, |max| {row['bank_abs_max_deg']:.2f} deg"
+                + (f", RMSE vs truth {row['bank_rmse_deg']:.3f} deg" if "bank_rmse_deg" in row else ""))
+        if (out / "calibration.toml").is_file():
+            cal = read_calibration(out / "calibration.toml")
+            line += (f"; lateral accelerometer bias {cal['accel_bias_m_s2'][1]:+.4f} "
+                     f"+- {cal['accel_bias_sigma_m_s2'][1]:.4f} m/s^2")
+            if not args.no_carry:
+                calibration = out / "calibration.toml"
+        else:
+            print(f"warning: {drive} wrote no calibration.toml: the next drive starts from "
+                  f"{calibration or 'the config'}", file=sys.stderr)
+        print(line)
     table = pd.DataFrame(rows)
     _write_tables(table, args.out / "campaign")
     ok = int((table["status"] == "ok").sum())

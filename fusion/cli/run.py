@@ -170,7 +170,11 @@ def run(args: argparse.Namespace) -> int:
     timings["fusion"] = time.perf_counter() - t0
     warnings += fused.warnings
     _write_csv(table, tmp / "fused.csv")
-    write_calibration(calibration_table(fused.fused), tmp / "calibration.toml", f"{files.can_log} ({'smoothed' if smooth else 'forward filter'})")
+    try:
+        write_calibration(calibration_table(fused.fused), tmp / "calibration.toml",
+                          f"{files.can_log} ({'smoothed' if smooth else 'forward filter'})")
+    except ValueError as e:   # a filter that ended without finite biases: nothing to carry on
+        warnings.append(f"no calibration.toml written: {e}")
 
     summary_out = None
     if not args.no_report:
@@ -205,8 +209,8 @@ def _write_csv(df, path: Path) -> None:
 
 def _print_summary(out, files, frames, imu, timings, warnings, summary, time_offset, total_s) -> None:
     drive_s = float(frames["t_s"].iloc[-1] - frames["t_s"].iloc[0]) if len(frames) > 1 else math.nan
-    print(f"wrote {out}/vision.csv, {out}/fused.csv, {out}/calibration.toml"
-          + ("" if summary is None else f", {out}/report/report.html"))
+    cal = f", {out}/calibration.toml" if (out / "calibration.toml").is_file() else ""
+    print(f"wrote {out}/vision.csv, {out}/fused.csv{cal}" + ("" if summary is None else f", {out}/report/report.html"))
     fixed = timings.get("start-up", 0.0) + timings.get("report", 0.0)
     per_drive = total_s - fixed
     print(f"time: total {total_s:.1f} s for a {drive_s:.1f} s drive; fixed costs {fixed:.1f} s "
