@@ -255,6 +255,71 @@ class ImuStep(NamedTuple):
     vision_gap: bool = False         # no vision for a while: the bank rate decays fast (bank held)
 
 
+# ---- small dense products, written as loops: for these sizes (3x3, 15x15, 15x3) they are
+# cheaper to call than BLAS and far cheaper to compile (numba's ``@`` brings BLAS bindings and
+# their shape-error formatting: about 10 s of the fusion's 26 s first-run compile, measured).
+# Zeros of the left factor (F, H are sparse) are skipped. Arguments must be C-contiguous
+# (pass no transposes: each layout is compiled anew).
+
+
+@nb.njit(cache=True)
+def _mm(A, B):
+    """``A @ B``."""
+    n, k = A.shape
+    m = B.shape[1]
+    C = np.zeros((n, m))
+    for i in range(n):
+        for l in range(k):
+            a = A[i, l]
+            if a != 0.0:
+                for j in range(m):
+                    C[i, j] += a * B[l, j]
+    return C
+
+
+@nb.njit(cache=True)
+def _tmm(A, B):
+    """``A.T @ B``."""
+    k, n = A.shape
+    m = B.shape[1]
+    C = np.zeros((n, m))
+    for l in range(k):
+        for i in range(n):
+            a = A[l, i]
+            if a != 0.0:
+                for j in range(m):
+                    C[i, j] += a * B[l, j]
+    return C
+
+
+@nb.njit(cache=True)
+def _mmt(A, B):
+    """``A @ B.T``; zeros of ``B`` are skipped."""
+    n, k = A.shape
+    m = B.shape[0]
+    C = np.zeros((n, m))
+    for j in range(m):
+        for l in range(k):
+            b = B[j, l]
+            if b != 0.0:
+                for i in range(n):
+                    C[i, j] += A[i, l] * b
+    return C
+
+
+@nb.njit(cache=True)
+def _mv(A, v):
+    """``A @ v``."""
+    n, k = A.shape
+    out = np.zeros(n)
+    for i in range(n):
+        acc = 0.0
+        for l in range(k):
+            acc += A[i, l] * v[l]
+        out[i] = acc
+    return out
+
+
 _VISION_STATES = (S.ROLL_W, S.PITCH_W, S.YAW_REL, S.BANK, S.GRADE)
 
 
@@ -264,7 +329,7 @@ def relative_attitude(x) -> np.ndarray:
     (state indices 0-4 of :class:`S`)."""
     R_gp_from_v = R_from_rpy_scalar(x[0], x[1], x[2])
     R_gp_from_o = R_from_rpy_scalar(x[3], x[4], 0.0)
-    return R_gp_from_o.T @ R_gp_from_v
+    return _tmm(R_gp_from_o, R_gp_from_v)
 
 
 @nb.njit(cache=True)
@@ -295,15 +360,15 @@ def vision_jacobian(x) -> np.ndarray:
     """
     A = R_from_rpy_scalar(x[3], x[4], 0.0)
     B = R_from_rpy_scalar(x[0], x[1], x[2])
-    R = A.T @ B
+    R = _tmm(A, B)
     cy, sy = math.cos(x[2]), math.sin(x[2])
     ex, ey, ez = _skew(1.0, 0.0, 0.0), _skew(0.0, 1.0, 0.0), _skew(0.0, 0.0, 1.0)
     dR = np.empty((5, 3, 3))              # in the order of _VISION_STATES
-    dR[0] = A.T @ (B @ ex)                # roll_w
-    dR[1] = A.T @ (_skew(-sy, cy, 0.0) @ B)   # pitch_w
-    dR[2] = A.T @ (ez @ B)                # yaw_rel
-    dR[3] = -(ex @ R)                     # bank:  (A [x])^T B = -[x] A^T B
-    dR[4] = -(A.T @ ey @ B)               # grade: ([y] A)^T B = -A^T [y] B
+    dR[0] = _tmm(A, _mm(B, ex))           # roll_w
+    dR[1] = _tmm(A, _mm(_skew(-sy, cy, 0.0), B))   # pitch_w
+    dR[2] = _tmm(A, _mm(ez, B))           # yaw_rel
+    dR[3] = -_mm(ex, R)                   # bank:  (A [x])^T B = -[x] A^T B
+    dR[4] = -_tmm(A, _mm(ey, B))          # grade: ([y] A)^T B = -A^T [y] B
     r21, r22, r20, r10, r00 = R[2, 1], R[2, 2], R[2, 0], R[1, 0], R[0, 0]
     n_roll, n_pitch, n_yaw = r21 * r21 + r22 * r22, math.sqrt(max(1e-300, 1.0 - r20 * r20)), r10 * r10 + r00 * r00
     H = np.zeros((3, DIM_X))
@@ -600,7 +665,7 @@ def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     p, q, r = _body_rates(x, gyro, has_q)
     # attitude relative to the road and the road frame's rotation, in o
     A = R_from_rpy_scalar(x[3], x[4], 0.0)          # R_g'_from_o
-    R = A.T @ R_from_rpy_scalar(phi, theta, x[2])   # R_o_from_v
+    R = _tmm(A, R_from_rpy_scalar(phi, theta, x[2]))   # R_o_from_v
     phi_o = math.atan2(R[2, 1], R[2, 2])
     theta_o = -math.asin(max(-1.0, min(1.0, R[2, 0])))
     wo0, wo1, wo2 = road_rate * A[2, 0] + x[10], road_rate * A[2, 1], road_rate * A[2, 2]
@@ -686,7 +751,7 @@ def _predict_x(x0, gyro, dt, follow, offset, has_q, tau):
     """Process model of the module docstring over one interval ``dt``."""
     x = x0.copy()
     p, q, r = _body_rates(x, gyro, has_q)
-    R = R_from_rpy_scalar(x[0], x[1], x[2]) @ so3_exp_scalar(p * dt, q * dt, r * dt)
+    R = _mm(R_from_rpy_scalar(x[0], x[1], x[2]), so3_exp_scalar(p * dt, q * dt, r * dt))
     roll, pitch, yaw = rpy_from_R_scalar(R)
     x[0], x[1] = roll, pitch
     if not follow:
@@ -757,20 +822,56 @@ def _transition(x, gyro, dt, follow, offset, has_q, tau, q_per_s, gyro_var, yaw_
 @nb.njit(cache=True)
 def _propagate_cov(P, F, Q):
     """``F P F^T + Q``, symmetrised."""
-    P1 = F @ P @ F.T + Q
+    P1 = _mmt(_mm(F, P), F) + Q
     return (P1 + P1.T) * 0.5
 
 
 @nb.njit(cache=True)
+def _inv_gauss_jordan(M):
+    """Inverse of a small square matrix, Gauss-Jordan with partial pivoting."""
+    n = M.shape[0]
+    A = M.copy()
+    out = np.eye(n)
+    for c in range(n):
+        piv = c
+        for r in range(c + 1, n):
+            if abs(A[r, c]) > abs(A[piv, c]):
+                piv = r
+        if piv != c:
+            for j in range(n):
+                A[c, j], A[piv, j] = A[piv, j], A[c, j]
+                out[c, j], out[piv, j] = out[piv, j], out[c, j]
+        d = A[c, c]
+        for j in range(n):
+            A[c, j] /= d
+            out[c, j] /= d
+        for r in range(n):
+            if r != c:
+                f = A[r, c]
+                if f != 0.0:
+                    for j in range(n):
+                        A[r, j] -= f * A[c, j]
+                        out[r, j] -= f * out[c, j]
+    return out
+
+
+@nb.njit(cache=True)
 def _inv_small(M):
-    """Inverse of a 1x1 or symmetric 3x3 matrix by cofactors, else LAPACK."""
+    """Inverse of a symmetric 1x1, 2x2 or 3x3 matrix by cofactors, else by Gauss-Jordan
+    elimination with partial pivoting (no LAPACK: see :func:`_mm`)."""
     n = M.shape[0]
     if n == 1:
         out = np.empty((1, 1))
         out[0, 0] = 1.0 / M[0, 0]
         return out
+    if n == 2:
+        a, b, d = M[0, 0], M[0, 1], M[1, 1]
+        det = a * d - b * b
+        out = np.empty((2, 2))
+        out[0, 0], out[0, 1], out[1, 0], out[1, 1] = d / det, -b / det, -b / det, a / det
+        return out
     if n != 3:
-        return np.ascontiguousarray(np.linalg.inv(M))
+        return _inv_gauss_jordan(M)
     a, b, c, d, e, f = M[0, 0], M[0, 1], M[0, 2], M[1, 1], M[1, 2], M[2, 2]
     A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
     det = a * A + b * B + c * C
@@ -786,15 +887,18 @@ def _inv_small(M):
 def _gated_update(x, P, y, H, R, gate):
     """Chi-square gate and EKF update (:meth:`AttitudeEKF.gated_update`): returns
     ``(accepted, d2, x, P, K, S, S^-1)``; ``x`` and ``P`` unchanged when rejected."""
-    PHT = P @ H.T
-    Sm = H @ PHT + R
+    PHT = _mmt(P, H)
+    Sm = _mm(H, PHT) + R
     SI = _inv_small(Sm)
-    d2 = y @ (SI @ y)
+    SIy = _mv(SI, y)
+    d2 = 0.0
+    for i in range(y.size):
+        d2 += y[i] * SIy[i]
     if not d2 <= gate:   # NaN rejects too
         return False, d2, x, P, PHT, Sm, SI
-    K = PHT @ SI
-    x1 = x + K @ y
-    P1 = P - K @ PHT.T
+    K = _mm(PHT, SI)
+    x1 = x + _mv(K, y)
+    P1 = P - _mmt(K, PHT)
     return True, d2, x1, (P1 + P1.T) * 0.5, K, Sm, SI
 
 
@@ -820,5 +924,11 @@ def _gravity_update(x, P, z, gyro, gyro_dot, rho, road_rate, has_q, R, gate):
 def _update_state(x, P, i, y, Sm):
     """Update by a measurement of state ``i`` with residual ``y`` and innovation variance ``Sm``."""
     K = P[:, i] / Sm
-    P1 = P - np.outer(K, P[i, :])
+    Pi = P[i, :].copy()
+    P1 = P.copy()
+    for a in range(P.shape[0]):
+        ka = K[a]
+        if ka != 0.0:
+            for b in range(P.shape[1]):
+                P1[a, b] -= ka * Pi[b]
     return x + K * y, P1, K

@@ -6,7 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fusion.ekf import DIM_X, AttitudeEKF, ImuStep, NoiseModel, S, vision_jacobian, vision_jacobian_numeric
+from fusion import ekf
+from fusion.ekf import DIM_X, _inv_small, AttitudeEKF, ImuStep, NoiseModel, S, vision_jacobian, vision_jacobian_numeric
 from fusion.engine import FusionOptions, FusionStream
 from fusion.metrics import consistency
 from fusion.pipeline import fuse, plain_bank
@@ -42,6 +43,25 @@ def test_vision_jacobian_matches_central_differences(angles):
     x[:5] = angles
     np.testing.assert_allclose(vision_jacobian(x), vision_jacobian_numeric(x), atol=1e-8)
 
+
+
+@settings(max_examples=50, deadline=None)
+@given(n=st.integers(1, 5), seed=st.integers(0, 2**31 - 1))
+def test_small_matrix_kernels_match_numpy(n, seed):
+    """The filter's hand-written products and inverse (no BLAS, :func:`fusion.ekf._mm`) against
+    numpy, on innovation-covariance-like matrices: 1x1 to 3x3 are the vision, gravity and
+    speed updates, 4x4 and 5x5 the general path. Relative 1e-10: a few roundings of a
+    product of order-one numbers, conditioning at most 1e3."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n, n))
+    M = A @ A.T + 1e-3 * np.eye(n) * np.trace(A @ A.T)
+    np.testing.assert_allclose(_inv_small(M) @ M, np.eye(n), atol=1e-10)
+    B, C, D = rng.normal(size=(n, 4)), rng.normal(size=(3, 4)), rng.normal(size=(n, 3))
+    B[B < -0.5] = 0.0   # the kernels skip zeros: sparse factors too
+    np.testing.assert_allclose(ekf._mm(B, C.T.copy()), B @ C.T, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(ekf._mmt(B, C), B @ C.T, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(ekf._tmm(B, B), B.T @ B, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(ekf._mv(B, C[0]), B @ C[0], rtol=1e-12, atol=1e-12)
 
 @settings(max_examples=60, deadline=None)
 @given(roll=st.floats(-0.8, 0.8), pitch=st.floats(-0.2, 0.2), yaw=st.floats(-0.2, 0.2),
