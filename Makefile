@@ -10,6 +10,7 @@ $(VENV)/.installed: pyproject.toml
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found"; exit 2; }
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install -e .
+	$(PY) -m fusion.warmup
 	touch $@
 
 $(VENV)/.installed-test: $(VENV)/.installed
