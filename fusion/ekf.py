@@ -100,7 +100,7 @@ from scipy.stats import chi2
 from vision.frames import R_from_rpy_scalar, rpy_from_R_scalar, so3_exp_scalar, wrap_angle
 
 __all__ = ["S", "DIM_X", "NoiseModel", "ImuStep", "RollAhead", "AttitudeEKF", "GRAVITY_M_S2",
-           "relative_attitude", "vision_hx", "vision_jacobian"]
+           "relative_attitude", "relative_outputs", "vision_hx", "vision_jacobian"]
 
 GRAVITY_M_S2 = 9.80665
 
@@ -380,6 +380,24 @@ def vision_jacobian(x) -> np.ndarray:
     return H
 
 
+@nb.njit(cache=True)
+def relative_outputs(X, P):
+    """Per state ``X[k]`` (N, DIM_X) with covariance ``P[k]``: the relative (roll, pitch, yaw)
+    of :func:`vision_hx`, (N, 3) rad, and the joint covariance of (roll, pitch, yaw, bank),
+    (N, 4, 4) rad^2, through :func:`vision_jacobian` (the fused table's outputs)."""
+    n = X.shape[0]
+    rel = np.empty((n, 3))
+    cov = np.empty((n, 4, 4))
+    J = np.zeros((4, DIM_X))
+    J[3, 3] = 1.0                                   # bank
+    for k in range(n):
+        x = np.ascontiguousarray(X[k])
+        rel[k] = vision_hx(x)
+        J[:3] = vision_jacobian(x)
+        cov[k] = _mmt(_mm(J, np.ascontiguousarray(P[k])), J)
+    return rel, cov
+
+
 def vision_jacobian_numeric(x, eps: float = 1e-6) -> np.ndarray:
     """Central-difference twin of :func:`vision_jacobian`, for tests."""
     H = np.zeros((3, DIM_X))
@@ -654,6 +672,25 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     def update_speed(self, speed_m_s: float) -> bool:
         return self.gated_update_state(S.SPEED, speed_m_s, self.noise.speed_meas_m_s**2)
+
+    def propagate_and_update(self, u: ImuStep, speed_m_s: float, accel_m_s2, gyro_rad_s, gyro_dot_rad_s2,
+                             gravity: bool) -> tuple[float, bool, bool]:
+        """One IMU sample's whole step in one compiled call: :meth:`propagate` over ``u``, then
+        :meth:`update_speed` when ``speed_m_s`` is finite, then :meth:`update_gravity` (with the
+        road's heading rate after the propagation) when ``gravity``. The same equations as the
+        three calls, in the same order; the per-update attributes of filterpy (``y``, ``S``,
+        ``K``) are not set. Returns ``(road turn rate, speed used, gravity used)``; an update
+        not attempted counts as used."""
+        n = self.noise
+        (self.x_prior, self.P_prior, self.F, self.Q, road_rate, ok_v, ok_g, d2, self.x, self.P) = _imu_step(
+            self.x, self.P, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
+            self._bank_rate_tau(u), self._q_per_s(u), n.gyro_noise_rad_s**2, n.yaw_rel_walk_no_lanes_rad_sqrt_s**2,
+            float(speed_m_s), n.speed_meas_m_s**2, self._gate[1], np.asarray(accel_m_s2, dtype=float),
+            np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float), self.lever_arm_m,
+            gravity, self._R_accel, self._gate[3])
+        self.x_post, self.P_post = self.x, self.P
+        self.last_d2 = d2
+        return road_rate, ok_v, ok_g
 
 
 @nb.njit(cache=True)
@@ -932,3 +969,26 @@ def _update_state(x, P, i, y, Sm):
             for b in range(P.shape[1]):
                 P1[a, b] -= ka * Pi[b]
     return x + K * y, P1, K
+
+
+@nb.njit(cache=True)
+def _imu_step(x, P, gyro_mean, dt, follow, offset, has_q, tau, q_per_s, gyro_var, yaw_walk_var,
+              speed, speed_var, gate1, accel, gyro, gyro_dot, rho, gravity, R_accel, gate3):
+    """:meth:`AttitudeEKF.propagate_and_update`: ``(x_prior, P_prior, F, Q, road_rate,
+    speed_ok, gravity_ok, last d2, x, P)``."""
+    x1, P1, F, Q, road_rate = _propagate(x, P, gyro_mean, dt, follow, offset, has_q, tau, q_per_s, gyro_var,
+                                         yaw_walk_var)
+    x2, P2 = x1, P1
+    ok_v, ok_g, d2 = True, True, math.nan
+    if not math.isnan(speed):
+        y = speed - x2[8]
+        Sm = P2[8, 8] + speed_var
+        d2 = y * y / Sm
+        ok_v = d2 <= gate1
+        if ok_v:
+            x2, P2, _ = _update_state(x2, P2, 8, y, Sm)
+    if gravity:
+        ok_g, d2, xg, Pg, _, _, _, _ = _gravity_update(x2, P2, accel, gyro, gyro_dot, rho, road_rate, has_q,
+                                                       R_accel, gate3)
+        x2, P2 = xg, Pg
+    return x1.copy(), P1.copy(), F, Q, road_rate, ok_v, ok_g, d2, x2, P2

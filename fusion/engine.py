@@ -215,6 +215,7 @@ class FusionStream:
         if prev is None:
             self._init_from_accel(s)
             s.gyro_dot = np.zeros(3)
+            self._sample_updates(s)
         else:
             t0, g0 = prev.t, prev.gyro
             for v in visions:
@@ -225,15 +226,14 @@ class FusionStream:
                 self._propagate(t0, tv, (g0 + g_v) / 2, imu_index=-1)
                 self._vision_update(v, id(v) in new)
                 t0, g0 = tv, g_v
-            self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index)
             s.gyro_dot = (s.gyro - prev.gyro) / (s.t - prev.t)
+            if self._speed_initialized and self._speed_rejected_in_row < self.options.reacquire_after_rejections:
+                # the usual case: propagation, speed and gravity updates in one compiled call
+                self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index, sample=s)
+            else:
+                self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index)
+                self._sample_updates(s)
         ekf = self.ekf
-        if s.speed_fresh:
-            self._speed_update(s.speed)
-        # The gravity reference needs the speed (centripetal term): not before the first one.
-        if self._speed_initialized and s.index % self.options.gravity_every == 0:
-            if not ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate):
-                self.counts["gravity_rejected"] += 1
         # At the sample's own time (or before the very first sample): after its IMU
         # measurements, in the same order as a late result would be applied.
         for v in visions:
@@ -246,19 +246,44 @@ class FusionStream:
             else:
                 self.steps[-1].x_post, self.steps[-1].P_post = s.x_post, s.P_post
 
-    def _propagate(self, t0: float, t1: float, gyro, imu_index: int) -> None:
+    def _sample_updates(self, s: _ImuSample) -> None:
+        """The measurements of sample ``s`` after the propagation to its time: wheel speed, then
+        the gravity reference (which needs the speed for its centripetal term: not before the
+        first one)."""
+        if s.speed_fresh:
+            self._speed_update(s.speed)
+        if self._speed_initialized and s.index % self.options.gravity_every == 0:
+            if not self.ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate):
+                self.counts["gravity_rejected"] += 1
+
+    def _propagate(self, t0: float, t1: float, gyro, imu_index: int, sample: _ImuSample | None = None) -> None:
+        """Propagate from ``t0`` to ``t1`` with the mean rate ``gyro``; with ``sample`` (the
+        speed state initialised and not due for re-acquisition), also apply that sample's
+        measurements (:meth:`_sample_updates`) in the same compiled call."""
+        ekf = self.ekf
         if t1 <= t0:
+            if sample is not None:
+                self._sample_updates(sample)
             return
         offset, t_fit = self._lane_fit
         follow = t1 - t_fit > self.options.lane_fit_hold_s  # no lane fit: the road turns with the vehicle
         u = ImuStep(t1 - t0, gyro, follow, offset, vision_gap=t1 - self._last_vision_t > _VISION_GAP_S)
-        roll0 = self.ekf.x[S.ROLL_W]
-        self._road_rate = self.ekf.propagate(u)
-        self._roll_prop += self.ekf.x[S.ROLL_W] - roll0
+        roll0 = ekf.x[S.ROLL_W]
+        if sample is None:
+            self._road_rate = ekf.propagate(u)
+        else:
+            gravity = sample.index % self.options.gravity_every == 0
+            self._road_rate, ok_v, ok_g = ekf.propagate_and_update(
+                u, sample.speed if sample.speed_fresh else math.nan, sample.accel, sample.gyro, sample.gyro_dot,
+                gravity)
+            if sample.speed_fresh:
+                self._speed_rejected_in_row = 0 if ok_v else self._speed_rejected_in_row + 1
+                self.counts["speed_rejected"] += not ok_v
+            self.counts["gravity_rejected"] += not ok_g
+        self._roll_prop += ekf.x_prior[S.ROLL_W] - roll0
         if self.record:
-            ekf = self.ekf
             self.steps.append(StepRecord(t1, ekf.F.copy(), ekf.x_prior.copy(), ekf.P_prior.copy(),
-                                         ekf.x.copy(), ekf.P.copy(), imu_index))
+                                         ekf.x_prior.copy(), ekf.P_prior.copy(), imu_index))
 
     def _speed_update(self, speed: float) -> None:
         """Wheel speed; the first one (and one after a run of rejections) sets the state."""

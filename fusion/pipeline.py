@@ -19,9 +19,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from vision.frames import R_from_rpy, rpy_from_R, wrap_angle
-
-from .ekf import S
+from .ekf import S, relative_outputs
 from .engine import FusionOptions, FusionStream
 from .errors import InputError
 from .smoother import rts_smooth
@@ -44,36 +42,16 @@ class FusedRun:
     warnings: list[str] = field(default_factory=list)
 
 
-def _relative_rpy(X: np.ndarray) -> np.ndarray:
-    """(N, 3) relative roll, pitch, yaw of states X (N, n), vectorised."""
-    R_gp_from_v = R_from_rpy(X[:, 0], X[:, 1], X[:, 2])
-    R_gp_from_o = R_from_rpy(X[:, 3], X[:, 4], np.zeros(len(X)))
-    return np.stack(rpy_from_R(np.swapaxes(R_gp_from_o, -1, -2) @ R_gp_from_v), axis=-1)
-
-
-def _output_jacobian(X: np.ndarray) -> np.ndarray:
-    """(N, 4, n) Jacobian of (roll, pitch, yaw, bank) relative outputs w.r.t. the state."""
-    J = np.zeros((len(X), 4, X.shape[1]))
-    eps = 1e-6
-    for i in range(5):
-        Xp, Xm = X.copy(), X.copy()
-        Xp[:, i] += eps
-        Xm[:, i] -= eps
-        J[:, :3, i] = wrap_angle(_relative_rpy(Xp) - _relative_rpy(Xm)) / (2 * eps)
-    J[:, 3, S.BANK] = 1.0
-    return J
-
-
 def output_covariance(X: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) covariance of (roll, pitch, yaw, bank), rad^2."""
-    J = _output_jacobian(X)
-    return J @ P @ np.swapaxes(J, -1, -2)
+    """(N, 4, 4) covariance of (roll, pitch, yaw, bank), rad^2 (:func:`fusion.ekf.relative_outputs`)."""
+    return relative_outputs(np.ascontiguousarray(X), np.ascontiguousarray(P))[1]
 
 
-def outputs_table(t_s: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame:
-    """The fused table (degrees, with 1-sigma) of states ``X`` (N, n) with covariances ``P``."""
-    rel = _relative_rpy(X)
-    sig_rel = np.sqrt(np.maximum(np.diagonal(output_covariance(X, P), axis1=1, axis2=2)[:, :3], 0.0))
+def outputs_table(t_s: np.ndarray, X: np.ndarray, P: np.ndarray, rel_cov=None) -> pd.DataFrame:
+    """The fused table (degrees, with 1-sigma) of states ``X`` (N, n) with covariances ``P``;
+    ``rel_cov``: :func:`fusion.ekf.relative_outputs` of them, when already computed."""
+    rel, cov = rel_cov if rel_cov is not None else relative_outputs(np.ascontiguousarray(X), np.ascontiguousarray(P))
+    sig_rel = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2)[:, :3], 0.0))
     d = np.sqrt(np.maximum(np.diagonal(P, axis1=1, axis2=2), 0.0))
     deg = np.degrees
     out = {
@@ -182,10 +160,11 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         xs, Ps = rts_smooth(stream.steps, *stream.start)
         at_sample = np.concatenate([[True], [s.imu_index >= 0 for s in stream.steps]])
         X, Pm = xs[at_sample], Ps[at_sample]
-    table = outputs_table(t, X, Pm)
+    rel_cov = relative_outputs(X, Pm)
+    table = outputs_table(t, X, Pm, rel_cov)
     counts = dict(stream.counts)
     counts["vision_after_last_imu"] = int(len(vt) - j)
-    return FusedRun(table, counts, smooth, output_covariance(X, Pm), warnings)
+    return FusedRun(table, counts, smooth, rel_cov[1], warnings)
 
 
 def plain_bank(fused_imu_only: pd.DataFrame, vision: pd.DataFrame, camera_time_offset_s: float = 0.0) -> pd.DataFrame:

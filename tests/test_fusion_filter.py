@@ -63,6 +63,33 @@ def test_small_matrix_kernels_match_numpy(n, seed):
     np.testing.assert_allclose(ekf._tmm(B, B), B.T @ B, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(ekf._mv(B, C[0]), B @ C[0], rtol=1e-12, atol=1e-12)
 
+
+@settings(max_examples=40, deadline=None)
+@given(roll=st.floats(-0.8, 0.8), speed=st.floats(0.5, 40.0), speed_meas=st.floats(0.0, 45.0),
+       f=st.lists(st.floats(-12.0, 12.0), min_size=3, max_size=3), has_q=st.booleans(), follow=st.booleans(),
+       gravity=st.booleans())
+def test_one_call_imu_step_equals_the_three_calls(roll, speed, speed_meas, f, has_q, follow, gravity):
+    """``propagate_and_update`` (what the stream calls for most samples) against ``propagate``,
+    ``update_speed``, ``update_gravity`` in turn: the same state and covariance to rounding,
+    the same gate decisions (speeds far from the state are rejected by both)."""
+    x0 = np.zeros(DIM_X)
+    x0[S.ROLL_W], x0[S.PITCH_W], x0[S.SPEED], x0[S.CURVATURE] = roll, 0.02, speed, 0.004
+    x0[S.GYRO_BIAS] = (0.01, -0.02, 0.015)
+    a, b = (AttitudeEKF(has_pitch_rate=has_q, lever_arm_m=(0.3, 0.0, -0.5)) for _ in range(2))
+    for e in (a, b):
+        e.x, e.P = x0.copy(), np.diag(np.linspace(1e-4, 2e-3, DIM_X))
+    gyro, gyro_dot, accel = np.array([0.05, -0.01, 0.2]), np.array([0.1, 0.0, -0.2]), np.asarray(f)
+    u = ImuStep(0.01, gyro, follow, 0.5)
+    rate = a.propagate(u)
+    ok_v = a.update_speed(speed_meas)
+    ok_g = a.update_gravity(accel, gyro, gyro_dot, rate) if gravity else True
+    rate_b, ok_v_b, ok_g_b = b.propagate_and_update(u, speed_meas, accel, gyro, gyro_dot, gravity)
+    assert (rate_b, ok_v_b, ok_g_b) == (rate, ok_v, ok_g)
+    np.testing.assert_allclose(b.x, a.x, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(b.P, a.P, rtol=1e-12, atol=1e-16)
+    np.testing.assert_allclose(b.P_prior, a.P_prior, rtol=1e-12, atol=1e-16)
+
+
 @settings(max_examples=60, deadline=None)
 @given(roll=st.floats(-0.8, 0.8), pitch=st.floats(-0.2, 0.2), yaw=st.floats(-0.2, 0.2),
        w=st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3), kappa=st.floats(-0.01, 0.01),
