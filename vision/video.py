@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Iterator
 
 import cv2
+import numba as nb
 import numpy as np
 
 from .camera import Camera, Mount, RoadMarkings
@@ -382,6 +383,8 @@ _COUNTER = None  # shared frame counter of the pool's processes (set by _init_wo
 
 
 def _init_worker(counter) -> None:
+    """A pool process: the shared frame counter. (Not ``cv2.setNumThreads(1)`` here: in a child
+    forked after the parent used OpenCV's thread pool it deadlocks, seen in the tests.)"""
     global _COUNTER
     _COUNTER = counter
 
@@ -389,6 +392,25 @@ def _init_worker(counter) -> None:
 def _tick_shared(n: int) -> None:
     with _COUNTER.get_lock():
         _COUNTER.value += n
+
+
+def _piece_starts(n_frames: int, workers: int, warm: int) -> list[int]:
+    """First frame (index into the wanted frames) of each worker's piece. Every piece but the
+    first also estimates ``warm`` frames before it, so those pieces are shorter by as much:
+    each worker then estimates the same number of frames and none finishes last by its warm-up
+    (equal pieces when they would be too short for that)."""
+    if (n_frames + (workers - 1) * warm) // workers - warm < _MIN_PIECE // 2:
+        warm = 0
+    work, extra = divmod(n_frames + (workers - 1) * warm, workers)
+    starts = [0]
+    for k in range(workers - 1):
+        starts.append(starts[-1] + work + (k < extra) - (warm if k > 0 else 0))
+    return [s for s in starts if s < n_frames]
+
+
+@nb.njit(cache=True)
+def _numba_started() -> int:  # pragma: no cover (numba)
+    return 1
 
 
 def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, workers: int, tick):
@@ -399,13 +421,17 @@ def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, 
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    size = math.ceil(len(wanted) / workers)
-    starts = range(0, len(wanted), size)
+    starts = _piece_starts(len(wanted), workers, WARM_UP_FRAMES)
     jobs = []
-    for k in starts:
-        piece, warm = wanted[k:k + size], wanted[max(0, k - WARM_UP_FRAMES):k]
+    for k, end in zip(starts, starts[1:] + [len(wanted)]):
+        piece, warm = wanted[k:end], wanted[max(0, k - WARM_UP_FRAMES):k]
         jobs.append((src, piece, warm, {i: times[i] for i in warm + piece}, setup))
     ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+    if ctx.get_start_method() == "fork":
+        # numba's first call in a process sets up its compiler target (0.3-0.4 s here, importing
+        # its implementations): done once here, the forked workers inherit it instead of each
+        # paying it, and so does this process's fusion after the vision.
+        _numba_started()
     counter = ctx.Value("q", 0)
     shown = 0
     with ProcessPoolExecutor(max_workers=len(jobs), mp_context=ctx, initializer=_init_worker,
