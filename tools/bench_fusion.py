@@ -135,6 +135,43 @@ def road_in_view(drive: Path, run_dir: Path) -> dict:
     return out
 
 
+def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
+    """The vision's errors against its own 1-sigma, on steady road (no bank change within 1.5 s
+    either way: the look-ahead spans about that) and near runoffs: per angle and part, RMS error
+    after the road-in-view model (what the filter is given), median sigma, and the RMS of
+    error / sigma with the sigma as the filter widens it (``noise``, a
+    :class:`fusion.ekf.NoiseModel`: scaled, floored, and a fraction of the modelled road-in-view
+    effect added, here from the true twist; the filter takes it from its own bank rate)."""
+    from fusion.metrics import interp_truth
+
+    v = pd.read_csv(run_dir / "vision.csv")
+    v = v[v["valid"] == 1]
+    truth = pd.read_csv(drive / "truth.csv")
+    tt = truth["t_s"].to_numpy()
+    rate = np.abs(np.gradient(truth["bank_deg"].to_numpy(), tt))
+    step = float(np.median(np.diff(tt)))
+    busy = pd.Series(rate > 0.01).rolling(2 * int(round(1.5 / step)) + 1, center=True, min_periods=1).max()
+    t = v["t_s"].to_numpy()
+    steady = np.interp(t, tt, busy.to_numpy()) < 0.5
+    tr = interp_truth(truth, t)
+    dt = 0.01
+    tau = np.radians((interp_truth(truth, t + dt)["bank_deg"] - interp_truth(truth, t - dt)["bank_deg"]).to_numpy()
+                     / (2 * dt)) / tr["speed_m_s"].to_numpy()
+    out = {"steady_share": float(steady.mean())}
+    for angle, col, sign in (("roll", "roll_lookahead_m", -1.0), ("pitch", "pitch_per_twist_m", 1.0),
+                             ("yaw", "yaw_per_twist_m", 1.0)):
+        e = v[f"{angle}_deg"].to_numpy() - tr[f"{angle}_deg"].to_numpy()
+        e = e - sign * np.degrees(np.nan_to_num(v[col].to_numpy()) * tau)
+        sig = v[f"{angle}_sigma_deg"].to_numpy()
+        used = np.hypot(np.maximum(sig * noise.vision_sigma_scale, math.degrees(noise.vision_sigma_floor_rad)),
+                        noise.vision_road_model_error * np.degrees(np.abs(np.nan_to_num(v[col].to_numpy()) * tau)))
+        z = e / used
+        ok = np.isfinite(e) & np.isfinite(sig)      # the last frames have no truth 10 ms later
+        out[angle] = [(float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])), float(np.sqrt(np.mean(z[m] ** 2))))
+                      if m.any() else (math.nan,) * 3 for m in (steady & ok, ~steady & ok)]
+    return out
+
+
 def filter_rate(drive: Path) -> float:
     """IMU samples per second through the forward filter alone (median of 3)."""
     from fusion.config import load_config
@@ -188,7 +225,9 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="only the 20 s drives")
     args = ap.parse_args(argv)
     names = QUICK if args.quick else DRIVES
-    rows, speed_rows, view_rows = [], [], []
+    from fusion.pipeline import FusionOptions
+
+    rows, speed_rows, view_rows, sigma_rows = [], [], [], []
     for name in names:
         drive = cached_full_drive(name)
         out = drive.parent / (drive.name + "-run")
@@ -199,6 +238,7 @@ def main(argv=None) -> int:
         rows.append((name, acc, summ_s["rmse_deg"]["fused"], summ["consistency"]["fraction_inside"],
                      summ_s["consistency"]["fraction_inside"], loss_max, recover))
         view_rows.append((name, road_in_view(drive, out)))
+        sigma_rows.append((name, vision_sigmas(drive, out, FusionOptions().noise)))
         dur = summ["duration_s"]
         tm = summ["timings_s"]
         # fixed: the whole command minus the per-drive stages (interpreter, imports, report)
@@ -244,6 +284,15 @@ def main(argv=None) -> int:
     for name, view in view_rows:
         for angle, (slope, model, before, after) in view.items():
             print(f"{name:<26} {angle:<6} {slope:9.2f} {model:9.2f} {before:7.3f} {after:7.3f}")
+    print()
+    print("The vision against its own sigma (after the road-in-view model): RMS error and median sigma [deg],")
+    print("RMS of error / sigma as the filter widens it (floor, road-in-view model error); steady road (no bank")
+    print("change within 1.5 s) | near runoffs")
+    print(f"{'drive':<26} {'angle':<6} {'steady':>7} {'RMS':>7} {'sigma':>7} {'z RMS':>6} {'runoffs RMS':>12} {'sigma':>7} {'z RMS':>6}")
+    for name, sg in sigma_rows:
+        for angle in ("roll", "pitch", "yaw"):
+            (a, b, c), (d, e, f) = sg[angle]
+            print(f"{name:<26} {angle:<6} {100 * sg['steady_share']:6.0f}% {a:7.3f} {b:7.3f} {c:6.2f} {d:12.3f} {e:7.3f} {f:6.2f}")
     print()
     print(f"{'drive':<26} {'duration':>9} {'vifusion run':>13} {'fixed':>7} {'rest / duration':>16} "
           f"{'filter alone':>16} {'LiveFusion':>14}")
