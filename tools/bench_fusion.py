@@ -169,6 +169,19 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
         ok = np.isfinite(e) & np.isfinite(sig)      # the last frames have no truth 10 ms later
         out[angle] = [(float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])), float(np.sqrt(np.mean(z[m] ** 2))))
                       if m.any() else (math.nan,) * 3 for m in (steady & ok, ~steady & ok)]
+    # The lane fit's other outputs the filter reads: the curvature (its own sigma, floored as the
+    # filter floors it) and the lateral offset at the contact point (no sigma reported).
+    e = v["curvature_1_m"].to_numpy() - tr["curvature_1_m"].to_numpy()
+    sig = v["curvature_sigma_1_m"].to_numpy()
+    used = np.maximum(sig, noise.curvature_sigma_floor_1_m + noise.curvature_sigma_floor_rel * np.abs(v["curvature_1_m"].to_numpy()))
+    ok = np.isfinite(e) & np.isfinite(sig)
+    out["curvature"] = [(float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])),
+                         float(np.sqrt(np.mean((e[m] / used[m]) ** 2)))) if m.any() else (math.nan,) * 3
+                        for m in (steady & ok, ~steady & ok)]
+    e = v["lateral_offset_m"].to_numpy() - tr["lateral_offset_m"].to_numpy()
+    ok = np.isfinite(e)
+    out["lateral"] = [(float(np.sqrt(np.mean(e[m] ** 2))), math.nan, math.nan) if m.any() else (math.nan,) * 3
+                      for m in (steady & ok, ~steady & ok)]
     return out
 
 
@@ -293,6 +306,13 @@ def main(argv=None) -> int:
         for angle in ("roll", "pitch", "yaw"):
             (a, b, c), (d, e, f) = sg[angle]
             print(f"{name:<26} {angle:<6} {100 * sg['steady_share']:6.0f}% {a:7.3f} {b:7.3f} {c:6.2f} {d:12.3f} {e:7.3f} {f:6.2f}")
+    print("The lane fit's curvature [1e-3 1/m; z RMS against its sigma floored as the filter floors it] and lateral")
+    print("offset at the contact point [m; no sigma reported], steady road | near runoffs")
+    for name, sg in sigma_rows:
+        (a, b, c), (d, e, f) = sg["curvature"]
+        print(f"{name:<26} {'kappa':<6} {'':7} {1e3 * a:7.3f} {1e3 * b:7.3f} {c:6.2f} {1e3 * d:12.3f} {1e3 * e:7.3f} {f:6.2f}")
+        (a, _, _), (d, _, _) = sg["lateral"]
+        print(f"{name:<26} {'offset':<6} {'':7} {a:7.3f} {'':7} {'':6} {d:12.3f}")
     print()
     print(f"{'drive':<26} {'duration':>9} {'vifusion run':>13} {'fixed':>7} {'rest / duration':>16} "
           f"{'filter alone':>16} {'LiveFusion':>14}")
