@@ -205,6 +205,13 @@ class NoiseModel:
     curvature_sigma_floor_1_m: float = 3e-4
     curvature_sigma_floor_rel: float = 0.2
 
+    def curvature_sigma_1_m(self, curvature_1_m, sigma_1_m):
+        """The lane-fit curvature's 1-sigma as the filter uses it (1/m; scalars or arrays): the
+        fit's own (``curvature_meas_1_m`` where it gives none), floored at
+        ``curvature_sigma_floor_1_m + curvature_sigma_floor_rel |curvature|``."""
+        own = np.where(np.isfinite(sigma_1_m), sigma_1_m, self.curvature_meas_1_m)
+        return np.maximum(own, self.curvature_sigma_floor_1_m + self.curvature_sigma_floor_rel * np.abs(curvature_1_m))
+
 
 @dataclass(frozen=True)
 class VisionMeasurement:
@@ -629,8 +636,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
             z, H, hx, sig = z[1:], H[1:], hx[1:], sig[1:]
         ok = self.gated_update(z, H, hx, np.diag(sig**2), residual=_angle_residual)
         if math.isfinite(curvature_1_m):
-            s_k = curvature_sigma_1_m if math.isfinite(curvature_sigma_1_m) else n.curvature_meas_1_m
-            s_k = max(s_k, n.curvature_sigma_floor_1_m + n.curvature_sigma_floor_rel * abs(curvature_1_m))
+            s_k = float(n.curvature_sigma_1_m(curvature_1_m, curvature_sigma_1_m))
             if not self.gated_update_state(S.CURVATURE, curvature_1_m, s_k**2):
                 self.curvature_rejected += 1
         return ok

@@ -173,7 +173,7 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     # filter floors it) and the lateral offset at the contact point (no sigma reported).
     e = v["curvature_1_m"].to_numpy() - tr["curvature_1_m"].to_numpy()
     sig = v["curvature_sigma_1_m"].to_numpy()
-    used = np.maximum(sig, noise.curvature_sigma_floor_1_m + noise.curvature_sigma_floor_rel * np.abs(v["curvature_1_m"].to_numpy()))
+    used = noise.curvature_sigma_1_m(v["curvature_1_m"].to_numpy(), sig)
     ok = np.isfinite(e) & np.isfinite(sig)
     out["curvature"] = [(float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])),
                          float(np.sqrt(np.mean((e[m] / used[m]) ** 2)))) if m.any() else (math.nan,) * 3
