@@ -204,6 +204,18 @@ class NoiseModel:
     #: was 13 % of curvature on the simulator).
     curvature_sigma_floor_1_m: float = 3e-4
     curvature_sigma_floor_rel: float = 0.2
+    #: Floor of the vision's road-twist 1-sigma (:attr:`VisionMeasurement.road_twist_rad_m`):
+    #: absolute plus relative. Against the simulator's truth its error is 0.002-0.004 deg/m RMS
+    #: on steady road (the estimator's own sigma: 0.001-0.002) and 15-25 % of the twist in the
+    #: runoffs, where the road departs from the one-twist model over the cross-sections.
+    twist_sigma_floor_rad_m: float = math.radians(0.004)
+    twist_sigma_floor_rel: float = 0.25
+
+    def twist_sigma_rad_m(self, twist_rad_m: float, sigma_rad_m: float) -> float:
+        """The vision's road-twist 1-sigma as the filter uses it (rad/m): its own, floored at
+        ``twist_sigma_floor_rad_m + twist_sigma_floor_rel |twist|``."""
+        own = sigma_rad_m if math.isfinite(sigma_rad_m) else 0.0
+        return max(own, self.twist_sigma_floor_rad_m + self.twist_sigma_floor_rel * abs(twist_rad_m))
 
     def curvature_sigma_1_m(self, curvature_1_m, sigma_1_m):
         """The lane-fit curvature's 1-sigma as the filter uses it (1/m; scalars or arrays): the
@@ -220,7 +232,8 @@ class VisionMeasurement:
     ``roll_lookahead_m``: how far ahead of the vehicle the roll was measured (the bank there
     is modelled, :meth:`AttitudeEKF.update_vision`); ``twist_m``: the pitch and yaw errors per
     rad/m of road twist, ``(y_l + y_r, y_l y_r / H)`` in metres (:class:`vision.VisionEstimate`
-    ``pitch_per_twist_m``, ``yaw_per_twist_m``).
+    ``pitch_per_twist_m``, ``yaw_per_twist_m``); ``road_twist_rad_m``: how fast the bank changes
+    along the road at the roll's cross-sections, with its 1-sigma (NaN: not measured).
     """
 
     t_s: float
@@ -231,6 +244,8 @@ class VisionMeasurement:
     lateral_offset_m: float = math.nan
     roll_lookahead_m: float = 0.0
     twist_m: tuple[float, float] = (0.0, 0.0)
+    road_twist_rad_m: float = math.nan
+    road_twist_sigma_rad_m: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -240,7 +255,9 @@ class RollAhead:
     The estimator's roll is relative to the road ``roll_lookahead_m`` ahead of the vehicle
     (where its lane cross-sections are); it is applied at ``t_s = capture + lookahead / v``,
     corrected by the roll the vehicle turned through meanwhile (``roll_prop_at_capture_rad``:
-    the stream's running sum of propagated roll at capture time).
+    the stream's running sum of propagated roll at capture time). The road's twist measured
+    there (rad/m, NaN: none) comes with it: at arrival it is the bank rate under the wheels
+    divided by the speed (:meth:`AttitudeEKF.update_road_twist`).
     """
 
     t_s: float
@@ -248,6 +265,8 @@ class RollAhead:
     sigma_rad: float
     dt_ahead_s: float
     roll_prop_at_capture_rad: float
+    twist_rad_m: float = math.nan
+    twist_sigma_rad_m: float = math.nan
 
 
 class ImuStep(NamedTuple):
@@ -654,6 +673,16 @@ class AttitudeEKF(ExtendedKalmanFilter):
         hx = vision_hx(self.x)[:1]
         z = np.array([r.roll_rad + roll_turned_rad])
         return self.gated_update(z, H, hx, np.array([[sig * sig]]), residual=_angle_residual)
+
+    def update_road_twist(self, twist_rad_m: float, sigma_rad_m: float) -> bool:
+        """The vision's road twist at the road under the wheels (:class:`RollAhead`) as the
+        bank rate: ``d bank / dt = v d bank / ds``, 1-sigma ``v`` times
+        :meth:`NoiseModel.twist_sigma_rad_m`. Gated like every update."""
+        v = float(self.x[S.SPEED])
+        if not (v > 1.0 and math.isfinite(twist_rad_m)):
+            return False
+        sig = v * self.noise.twist_sigma_rad_m(twist_rad_m, sigma_rad_m)
+        return self.gated_update_state(S.BANK_RATE, v * twist_rad_m, sig * sig)
 
     def specific_force_model(self, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0):
         """Predicted specific force at the IMU (vehicle axes, m/s^2) and its Jacobian.

@@ -146,7 +146,7 @@ class FusionStream:
         self._roll_prop = 0.0   # running sum of the roll (relative to level) the propagation turned, rad
         self.counts = dict(imu=0, vision_used=0, vision_rejected=0, vision_invalid=0, vision_late=0,
                            vision_too_old=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
-                           roll_ahead_reacquired=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0)
+                           roll_ahead_reacquired=0, twist_used=0, twist_rejected=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0)
 
     # ---- inputs ----
 
@@ -173,9 +173,11 @@ class FusionStream:
     def add_vision(self, t_s: float, angles_rad, sigmas_rad, valid: bool = True,
                    curvature_1_m: float = math.nan, lateral_offset_m: float = math.nan,
                    curvature_sigma_1_m: float = math.nan, lookahead_m: float = 0.0,
-                   twist_m: tuple[float, float] = (0.0, 0.0)) -> None:
+                   twist_m: tuple[float, float] = (0.0, 0.0),
+                   road_twist_rad_m: tuple[float, float] = (math.nan, math.nan)) -> None:
         """A vision result: roll, pitch, yaw relative to the road at capture time ``t_s``
-        (the other arguments: :class:`fusion.ekf.VisionMeasurement`)."""
+        (the other arguments: :class:`fusion.ekf.VisionMeasurement`; ``road_twist_rad_m``: the
+        road twist and its 1-sigma, rad/m)."""
         if not self.options.use_vision:
             return
         angles = np.asarray(angles_rad, dtype=float)
@@ -185,7 +187,8 @@ class FusionStream:
             return
         tw = tuple(float(g) if math.isfinite(g) else 0.0 for g in twist_m)
         item = VisionMeasurement(float(t_s), angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
-                                 float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw)
+                                 float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw,
+                                 float(road_twist_rad_m[0]), float(road_twist_rad_m[1]))
         if not self._hist or item.t_s > self._hist[-1].t:
             bisect.insort_right(self._pending, item, key=_time_of)   # the IMU has not reached it yet
         else:
@@ -306,6 +309,9 @@ class FusionStream:
             turned = self._roll_prop - m.roll_prop_at_capture_rad
             ok = ekf.update_roll_ahead(m, turned)
             self.counts["roll_ahead_used" if ok else "roll_ahead_rejected"] += first
+            if math.isfinite(m.twist_rad_m):
+                tw_ok = ekf.update_road_twist(m.twist_rad_m, m.twist_sigma_rad_m)
+                self.counts["twist_used" if tw_ok else "twist_rejected"] += first
             self._roll_rejected_in_row = 0 if ok else self._roll_rejected_in_row + 1
             if self._roll_rejected_in_row >= self.options.reacquire_after_rejections:
                 # the bank drifted away from what the vision sees: take it from the vision again
@@ -333,7 +339,8 @@ class FusionStream:
                                             n.bank_rate_preview_gain * abs(ekf.x[S.BANK_RATE])))
             if first:
                 bisect.insort_right(self._pending, RollAhead(t + dt_ahead, float(angles[0]), float(m.sigmas_rad[0]),
-                                                             dt_ahead, self._roll_prop), key=_time_of)
+                                                             dt_ahead, self._roll_prop, m.road_twist_rad_m,
+                                                             m.road_twist_sigma_rad_m), key=_time_of)
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
             # First frame: take yaw, bank and grade from it so that the filter starts consistent.

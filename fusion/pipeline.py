@@ -94,6 +94,9 @@ def vision_inputs(vision: pd.DataFrame) -> pd.DataFrame:
     for c in ("pitch_per_twist_m", "yaw_per_twist_m"):
         if c not in v.columns:
             v[c] = 0.0
+    for c in ("road_twist_deg_per_m", "road_twist_sigma_deg_per_m"):
+        if c not in v.columns:
+            v[c] = np.nan
     return v
 
 
@@ -144,6 +147,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         vks = v["curvature_sigma_1_m"].to_numpy(dtype=float)
         vla = v["roll_lookahead_m"].to_numpy(dtype=float)
         vtw = v[["pitch_per_twist_m", "yaw_per_twist_m"]].to_numpy(dtype=float)
+        vrt = np.radians(v[["road_twist_deg_per_m", "road_twist_sigma_deg_per_m"]].to_numpy(dtype=float))
         vd = v["lateral_offset_m"].to_numpy(dtype=float)
     else:
         vt = np.zeros(0)
@@ -152,7 +156,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     j = 0
     for k in tqdm(range(len(t)), desc="fuse", unit="sample", disable=not progress, mininterval=0.5):
         while j < len(vt) and vt[j] <= t[k]:
-            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j])
+            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j], vrt[j])
             j += 1
         stream.add_imu(t[k], gyro[k], accel[k], speed[k], bool(fresh[k]))
         X[k], Pm[k] = stream.ekf.x, stream.ekf.P

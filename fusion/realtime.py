@@ -74,7 +74,8 @@ class LiveFusion:
                                (est.roll_sigma_rad, est.pitch_sigma_rad, est.yaw_sigma_rad), est.valid,
                                est.curvature_1_m, est.lateral_offset_m,
                                est.curvature_sigma_1_m, est.roll_lookahead_m,
-                               (est.pitch_per_twist_m, est.yaw_per_twist_m))
+                               (est.pitch_per_twist_m, est.yaw_per_twist_m),
+                               (est.road_twist_rad_m, est.road_twist_sigma_rad_m))
 
     def estimate(self) -> Estimate:
         """The latest estimate (after the newest IMU sample), with 1-sigma."""
