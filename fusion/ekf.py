@@ -223,11 +223,19 @@ class NoiseModel:
     twist_sigma_floor_rad_m: float = math.radians(0.004)
     twist_sigma_floor_rel: float = 0.25
 
-    def twist_sigma_rad_m(self, twist_rad_m: float, sigma_rad_m: float) -> float:
-        """The vision's road-twist 1-sigma as the filter uses it (rad/m): its own, floored at
-        ``twist_sigma_floor_rad_m + twist_sigma_floor_rel |twist|``."""
-        own = sigma_rad_m if math.isfinite(sigma_rad_m) else 0.0
-        return max(own, self.twist_sigma_floor_rad_m + self.twist_sigma_floor_rel * abs(twist_rad_m))
+    def vision_sigma_rad(self, sigma_rad, road_effect_rad=0.0):
+        """The vision angles' 1-sigma as the filter uses it (rad; scalars or arrays): their own
+        times ``vision_sigma_scale``, floored at ``vision_sigma_floor_rad``, and in quadrature
+        ``vision_road_model_error`` of the road-in-view effect the filter models for them (the
+        lookahead's bank change, the twist's pitch and yaw errors)."""
+        own = np.maximum(np.asarray(sigma_rad, dtype=float) * self.vision_sigma_scale, self.vision_sigma_floor_rad)
+        return np.hypot(own, self.vision_road_model_error * np.abs(road_effect_rad))
+
+    def twist_sigma_rad_m(self, twist_rad_m, sigma_rad_m):
+        """The vision's road-twist 1-sigma as the filter uses it (rad/m; scalars or arrays): its
+        own, floored at ``twist_sigma_floor_rad_m + twist_sigma_floor_rel |twist|``."""
+        own = np.where(np.isfinite(sigma_rad_m), sigma_rad_m, 0.0)
+        return np.maximum(own, self.twist_sigma_floor_rad_m + self.twist_sigma_floor_rel * np.abs(twist_rad_m))
 
     def curvature_sigma_1_m(self, curvature_1_m, sigma_1_m):
         """The lane-fit curvature's 1-sigma as the filter uses it (1/m; scalars or arrays): the
@@ -608,11 +616,6 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.x_post, self.P_post = self.x, self.P
         return True
 
-    def _vision_sigma(self, sigma_rad):
-        """The vision's own 1-sigma as the filter uses it: scaled, then floored."""
-        n = self.noise
-        return np.maximum(sigma_rad * n.vision_sigma_scale, n.vision_sigma_floor_rad)
-
     def update_vision(self, m: VisionMeasurement, defer_roll: bool = False, bank_rate_ahead: float = 0.0) -> bool:
         """Vision (roll, pitch, yaw) relative to the road, with the estimator's own 1-sigma, then
         the lane-fit curvature when there is one, gated on its own: a curvature outlier must not
@@ -633,7 +636,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
         """
         n = self.noise
         curvature_1_m, curvature_sigma_1_m = m.curvature_1_m, m.curvature_sigma_1_m
-        sig = self._vision_sigma(np.asarray(m.sigmas_rad, dtype=float))
+        own_sig = np.asarray(m.sigmas_rad, dtype=float)
+        effect = 0.0                     # the road-in-view effect modelled, rad (per angle)
         x_seen = self.x
         v = self.x[S.SPEED]
         lookahead = m.roll_lookahead_m if math.isfinite(m.roll_lookahead_m) and m.roll_lookahead_m > 0 else 0.0
@@ -646,9 +650,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
             H[:, S.BANK_RATE] = H[:, S.BANK] * dt_ahead
             H[:, S.BANK_RATE] += per_twist
             hx = vision_hx(x_seen) + per_twist * self.x[S.BANK_RATE]
-            if n.vision_road_model_error > 0.0:
-                effect = abs(self.x[S.BANK_RATE]) * np.array([dt_ahead, abs(per_twist[1]), abs(per_twist[2])])
-                sig = np.hypot(sig, n.vision_road_model_error * effect)
+            effect = self.x[S.BANK_RATE] * np.array([dt_ahead, per_twist[1], per_twist[2]])
         else:
             H, hx = vision_jacobian(x_seen), vision_hx(x_seen)
             if per_twist is not None:
@@ -661,7 +663,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
                 # wrong way by degrees.
                 rate = 0.5 * (self.x[S.BANK_RATE] + bank_rate_ahead)
                 hx = hx + per_twist * rate
-                sig = np.hypot(sig, n.vision_road_model_error * abs(rate) * np.abs(per_twist))
+                effect = per_twist * rate
+        sig = n.vision_sigma_rad(own_sig, effect)
         z = np.asarray(m.angles_rad, dtype=float)
         if defer_roll:
             z, H, hx, sig = z[1:], H[1:], hx[1:], sig[1:]
@@ -678,9 +681,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
         under the wheels, with ``roll_turned_rad`` the vehicle's roll (relative to level) since
         the frame, as the gyros propagated it. Gated like every update."""
         n = self.noise
-        sig = float(self._vision_sigma(r.sigma_rad))
         # the lookahead's own error (a fraction of it) is a timing error of the bank
-        sig = math.hypot(sig, n.vision_road_model_error * abs(self.x[S.BANK_RATE]) * r.dt_ahead_s)
+        sig = float(n.vision_sigma_rad(r.sigma_rad, self.x[S.BANK_RATE] * r.dt_ahead_s))
         H = vision_jacobian(self.x)[:1]
         hx = vision_hx(self.x)[:1]
         z = np.array([r.roll_rad + roll_turned_rad])
@@ -693,7 +695,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         v = float(self.x[S.SPEED])
         if not (v > 1.0 and math.isfinite(twist_rad_m)):
             return False
-        sig = v * self.noise.twist_sigma_rad_m(twist_rad_m, sigma_rad_m)
+        sig = v * float(self.noise.twist_sigma_rad_m(twist_rad_m, sigma_rad_m))
         return self.gated_update_state(S.BANK_RATE, v * twist_rad_m, sig * sig)
 
     def specific_force_model(self, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0):

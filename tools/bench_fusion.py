@@ -163,8 +163,7 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
         e = v[f"{angle}_deg"].to_numpy() - tr[f"{angle}_deg"].to_numpy()
         e = e - sign * np.degrees(np.nan_to_num(v[col].to_numpy()) * tau)
         sig = v[f"{angle}_sigma_deg"].to_numpy()
-        used = np.hypot(np.maximum(sig * noise.vision_sigma_scale, math.degrees(noise.vision_sigma_floor_rad)),
-                        noise.vision_road_model_error * np.degrees(np.abs(np.nan_to_num(v[col].to_numpy()) * tau)))
+        used = np.degrees(noise.vision_sigma_rad(np.radians(sig), np.nan_to_num(v[col].to_numpy()) * tau))
         z = e / used
         ok = np.isfinite(e) & np.isfinite(sig)      # the last frames have no truth 10 ms later
         out[angle] = [(float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])), float(np.sqrt(np.mean(z[m] ** 2))))
@@ -182,6 +181,20 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     ok = np.isfinite(e)
     out["lateral"] = [(float(np.sqrt(np.mean(e[m] ** 2))), math.nan, math.nan) if m.any() else (math.nan,) * 3
                       for m in (steady & ok, ~steady & ok)]
+    # The road twist (three lines) against the truth's d bank / ds at the lookahead, the sigma
+    # floored as the filter floors it; and the share of frames that measured it.
+    got = v["road_twist_deg_per_m"].to_numpy()
+    at = tr["station_m"].to_numpy() + v["roll_lookahead_m"].to_numpy()
+    true = (np.interp(at + 1.0, truth["station_m"], truth["bank_deg"])
+            - np.interp(at - 1.0, truth["station_m"], truth["bank_deg"])) / 2.0
+    e = got - true
+    sig = v["road_twist_sigma_deg_per_m"].to_numpy()
+    used = np.degrees(noise.twist_sigma_rad_m(np.radians(got), np.radians(sig)))
+    ok = np.isfinite(e)
+    out["twist_share"] = float(ok.mean())
+    out["twist"] = [(float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])),
+                     float(np.sqrt(np.mean((e[m] / used[m]) ** 2)))) if m.any() else (math.nan,) * 3
+                    for m in (steady & ok, ~steady & ok)]
     return out
 
 
@@ -313,6 +326,12 @@ def main(argv=None) -> int:
         print(f"{name:<26} {'kappa':<6} {'':7} {1e3 * a:7.3f} {1e3 * b:7.3f} {c:6.2f} {1e3 * d:12.3f} {1e3 * e:7.3f} {f:6.2f}")
         (a, _, _), (d, _, _) = sg["lateral"]
         print(f"{name:<26} {'offset':<6} {'':7} {a:7.3f} {'':7} {'':6} {d:12.3f}")
+    print("The road twist measured by the cross-sections (three lines) against the truth's d bank / ds at the")
+    print("lookahead [1e-3 deg/m; z RMS against its sigma floored as the filter floors it], share of frames measured")
+    for name, sg in sigma_rows:
+        (a, b, c), (d, e, f) = sg["twist"]
+        print(f"{name:<26} {'twist':<6} {100 * sg['twist_share']:6.0f}% {1e3 * a:7.2f} {1e3 * b:7.2f} {c:6.2f} "
+              f"{1e3 * d:12.2f} {1e3 * e:7.2f} {f:6.2f}")
     print()
     print(f"{'drive':<26} {'duration':>9} {'vifusion run':>13} {'fixed':>7} {'rest / duration':>16} "
           f"{'filter alone':>16} {'LiveFusion':>14}")
