@@ -157,7 +157,36 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
         figs["errors.png"] = _fig_to_png(fig)
         plt.close(fig)
 
-    # 4. sensor biases
+    # 4. the road: curvature and bank rate (the vision's twist at the road it was measured on)
+    fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
+    k, ks = f["curvature_1_m"].to_numpy(), f["curvature_sigma_1_m"].to_numpy()
+    axes[0].plot(tf, k, color="tab:blue", lw=1.2, label="fused")
+    axes[0].fill_between(tf, k - 2 * ks, k + 2 * ks, color="tab:blue", alpha=0.2, lw=0, label="fused 2-sigma")
+    axes[1].plot(tf, f["bank_rate_deg_s"], color="tab:blue", lw=1.2, label="fused")
+    if vis is not None and len(vis):
+        tv = vis["t_s"].to_numpy() + r.camera_time_offset_s
+        axes[0].plot(tv - t0, vis["curvature_1_m"], ".", ms=2.5, color="tab:orange", alpha=0.7, label="vision")
+        if "road_twist_deg_per_m" in vis and np.isfinite(vis["road_twist_deg_per_m"].to_numpy()).any():
+            v = np.interp(tv, f["t_s"], f["speed_m_s"])
+            ahead = np.nan_to_num(vis["roll_lookahead_m"].to_numpy()) / np.maximum(v, 1.0)
+            axes[1].plot(tv + ahead - t0, v * vis["road_twist_deg_per_m"].to_numpy(), ".", ms=2.5,
+                         color="tab:orange", alpha=0.7, label="vision twist x speed, where measured")
+    if truth is not None and "curvature_1_m" in truth:
+        axes[0].plot(tf, truth["curvature_1_m"], "k--", lw=1.0, label="truth")
+    if r.truth is not None and "bank_deg" in r.truth:
+        tt = r.truth["t_s"].to_numpy()
+        axes[1].plot(tt - t0, np.gradient(r.truth["bank_deg"].to_numpy(), tt), "k--", lw=1.0, label="truth")
+    axes[0].set_ylabel("curvature [1/m]")
+    axes[1].set_ylabel("bank rate [deg/s]")
+    axes[0].set_title("the road: lane curvature and bank rate")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8, ncol=4)
+    axes[-1].set_xlabel("time [s]")
+    figs["road.png"] = _fig_to_png(fig)
+    plt.close(fig)
+
+    # 5. sensor biases
     fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
     for i, ax_name in enumerate("xyz"):
         axes[0].plot(tf, f[f"gyro_bias_{ax_name}_deg_s"], lw=1.0, label=f"gyro {ax_name}", color=f"C{i}")

@@ -66,7 +66,7 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
     assert (out / "calibration.toml").is_file()
     html = (out / "report" / "report.html").read_text()
     assert "data:image/png;base64" in html
-    for png in ("attitude.png", "world.png", "errors.png", "biases.png"):
+    for png in ("attitude.png", "world.png", "errors.png", "road.png", "biases.png"):
         assert (out / "report" / png).stat().st_size > 10_000
     assert not out.with_name("out.partial").exists()
 
