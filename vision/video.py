@@ -26,12 +26,17 @@ __all__ = ["FrameSource", "count_frames", "default_workers", "estimate_video", "
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
+#: ``vision.csv``'s columns of :attr:`vision.estimator.VisionEstimate.twist_response`, in its order.
+TWIST_RESPONSE_COLUMNS = ("curvature_per_twist_here", "curvature_per_twist_ahead", "pitch_per_twist_here_m",
+                          "pitch_per_twist_ahead_m", "yaw_per_twist_here_m", "yaw_per_twist_ahead_m")
+
 #: Columns of ``vision.csv`` (INTERFACE.md: the first six, then quality columns).
 VISION_COLUMNS = (
     "t_s", "frame", "roll_deg", "pitch_deg", "yaw_deg", "valid",
     "roll_sigma_deg", "pitch_sigma_deg", "yaw_sigma_deg",
     "curvature_1_m", "curvature_sigma_1_m", "roll_lookahead_m",
     "pitch_per_twist_m", "yaw_per_twist_m", "road_twist_deg_per_m", "road_twist_sigma_deg_per_m",
+    *TWIST_RESPONSE_COLUMNS,
     "lateral_offset_m", "line_spacing_m", "n_lines", "roll_equation", "vp_x_px", "vp_y_px", "edge_rms_px", "iterations", "warps", "ms", "reason",
 )
 
@@ -115,6 +120,7 @@ def vision_row(t_s: float, frame: int, est: VisionEstimate, ms: float = math.nan
         "roll_lookahead_m": est.roll_lookahead_m,
         "pitch_per_twist_m": est.pitch_per_twist_m, "yaw_per_twist_m": est.yaw_per_twist_m,
         "road_twist_deg_per_m": deg(est.road_twist_rad_m), "road_twist_sigma_deg_per_m": deg(est.road_twist_sigma_rad_m),
+        **dict(zip(TWIST_RESPONSE_COLUMNS, est.twist_response)),
         "lateral_offset_m": est.lateral_offset_m, "line_spacing_m": est.line_spacing_m,
         "n_lines": est.n_lines, "roll_equation": est.roll_equation,
         "vp_x_px": est.vp_px[0], "vp_y_px": est.vp_px[1], "edge_rms_px": est.edge_rms_px,
