@@ -174,10 +174,11 @@ class FusionStream:
                    curvature_1_m: float = math.nan, lateral_offset_m: float = math.nan,
                    curvature_sigma_1_m: float = math.nan, lookahead_m: float = 0.0,
                    twist_m: tuple[float, float] = (0.0, 0.0),
-                   road_twist_rad_m: tuple[float, float] = (math.nan, math.nan)) -> None:
+                   road_twist_rad_m: tuple[float, float] = (math.nan, math.nan),
+                   twist_response=(math.nan,) * 6) -> None:
         """A vision result: roll, pitch, yaw relative to the road at capture time ``t_s``
         (the other arguments: :class:`fusion.ekf.VisionMeasurement`; ``road_twist_rad_m``: the
-        road twist and its 1-sigma, rad/m)."""
+        road twist and its 1-sigma, rad/m; ``twist_response``: the estimator's six gains)."""
         if not self.options.use_vision:
             return
         angles = np.asarray(angles_rad, dtype=float)
@@ -188,7 +189,8 @@ class FusionStream:
         tw = tuple(float(g) if math.isfinite(g) else 0.0 for g in twist_m)
         item = VisionMeasurement(float(t_s), angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
                                  float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw,
-                                 float(road_twist_rad_m[0]), float(road_twist_rad_m[1]))
+                                 float(road_twist_rad_m[0]), float(road_twist_rad_m[1]),
+                                 tuple(float(g) for g in twist_response))
         if not self._hist or item.t_s > self._hist[-1].t:
             bisect.insort_right(self._pending, item, key=_time_of)   # the IMU has not reached it yet
         else:

@@ -23,6 +23,7 @@ from .ekf import S, relative_outputs
 from .engine import FusionOptions, FusionStream
 from .errors import InputError
 from .smoother import rts_smooth
+from vision.video import TWIST_RESPONSE_COLUMNS
 
 __all__ = ["FusedRun", "fuse", "outputs_table", "output_covariance", "plain_bank", "vision_inputs"]
 
@@ -94,7 +95,7 @@ def vision_inputs(vision: pd.DataFrame) -> pd.DataFrame:
     for c in ("pitch_per_twist_m", "yaw_per_twist_m"):
         if c not in v.columns:
             v[c] = 0.0
-    for c in ("road_twist_deg_per_m", "road_twist_sigma_deg_per_m"):
+    for c in ("road_twist_deg_per_m", "road_twist_sigma_deg_per_m") + TWIST_RESPONSE_COLUMNS:
         if c not in v.columns:
             v[c] = np.nan
     return v
@@ -148,6 +149,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         vla = v["roll_lookahead_m"].to_numpy(dtype=float)
         vtw = v[["pitch_per_twist_m", "yaw_per_twist_m"]].to_numpy(dtype=float)
         vrt = np.radians(v[["road_twist_deg_per_m", "road_twist_sigma_deg_per_m"]].to_numpy(dtype=float))
+        vresp = v[list(TWIST_RESPONSE_COLUMNS)].to_numpy(dtype=float)
         vd = v["lateral_offset_m"].to_numpy(dtype=float)
     else:
         vt = np.zeros(0)
@@ -156,7 +158,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     j = 0
     for k in tqdm(range(len(t)), desc="fuse", unit="sample", disable=not progress, mininterval=0.5):
         while j < len(vt) and vt[j] <= t[k]:
-            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j], vrt[j])
+            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j], vrt[j], vresp[j])
             j += 1
         stream.add_imu(t[k], gyro[k], accel[k], speed[k], bool(fresh[k]))
         X[k], Pm[k] = stream.ekf.x, stream.ekf.P

@@ -75,7 +75,7 @@ class LiveFusion:
                                est.curvature_1_m, est.lateral_offset_m,
                                est.curvature_sigma_1_m, est.roll_lookahead_m,
                                (est.pitch_per_twist_m, est.yaw_per_twist_m),
-                               (est.road_twist_rad_m, est.road_twist_sigma_rad_m))
+                               (est.road_twist_rad_m, est.road_twist_sigma_rad_m), est.twist_response)
 
     def estimate(self) -> Estimate:
         """The latest estimate (after the newest IMU sample), with 1-sigma."""
