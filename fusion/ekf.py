@@ -65,7 +65,12 @@ d bank / ds`` (rad/m, :func:`vision.estimator._road_twist`). It travels with the
 
     z = v tau,    sigma = v max(sigma_tau, floor + rel |tau|)
 
-so that the bank rate is no longer only what the bursts of deferred rolls imply. Measured on
+so that the bank rate is no longer only what the bursts of deferred rolls imply. The twist
+also moves the vision's yaw and lane curvature; where it changes across the view (a runoff
+coming into view) the uniform-twist model misses most of it, and the estimator's own response
+to the twist here and ahead (``VisionMeasurement.twist_response``) corrects yaw and curvature
+with ``tau_here = bank_rate / v`` and ``tau_ahead`` the measured twist (pitch keeps the
+uniform model, which did better for it). Measured on
 the three HD drives (``tools/bench_fusion.py``): NEES share in band 61 / 73 / 92 -> 78 / 83 /
 93 %, roll 0.133 / 0.093 / 0.125 -> 0.132 / 0.069 / 0.123 deg, bank 0.260 / 0.198 / 0.557 ->
 0.275 / 0.177 / 0.587 deg.
