@@ -155,11 +155,11 @@ def test_road_twist_from_the_cross_sections(name, times, size):
 def test_twist_response_predicts_the_runoff_errors():
     """In a superelevation runoff the twist changes across the view, and the lane fit's
     curvature and yaw go wrong by up to 3.6e-3 1/m and 2.3 deg here (640x360, the right-hand
-    7 deg drive as the runoff comes into view and passes). ``twist_response`` (the refitted
-    lane model's response to the twist at the vehicle and at the cross-sections) with the true
+    7 deg drive as the runoff comes into view and passes). ``twist_response`` (the lane
+    model's linear response to the twist at the vehicle and at the cross-sections) with the true
     twists predicts those errors: what it leaves is at most half of each error plus 0.3e-3 1/m
     and 0.1 deg, and over the frames less than half of the error RMS and of what the uniform
-    twist model leaves for yaw (measured RMS: curvature 2.5 -> 0.75e-3 1/m, yaw 1.30 -> 0.22 deg,
+    twist model leaves for yaw (measured RMS: curvature 2.5 -> 0.8e-3 1/m, yaw 1.30 -> 0.23 deg,
     the uniform model 0.51 deg)."""
     times = [2.4, 2.6, 2.8, 3.0, 3.5, 3.7]
     sc, road, images, truth = small_drive("banked_curve_right_7deg", times)

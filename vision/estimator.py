@@ -226,9 +226,6 @@ _ANGLE_MODEL_SIGMA_RAD = (0.0, 0.0, 0.0)
 CURVATURE_MODEL_SIGMA = (0.0, 0.0)
 #: The road twist is measured when the cross-sections span at least this (m).
 TWIST_MIN_SPAN_M = 2.0
-#: Twist by which :meth:`Estimator._twist_response` displaces the points (rad/m): a few mm at
-#: 40 m, inside the fit's outlier cut, so that the response is the fit's linear one.
-_TWIST_STEP_RAD_M = 1e-5
 
 # ---------------------------------------------------------------------------------------------
 # Attitude conversions (eq. (22))
@@ -742,12 +739,8 @@ class Estimator:
         curvature_sigma = self._curvature_sigma(model, x_c, n_lines, curvature)
         twist, twist_sigma = _road_twist(model, x_rows, use_eq10, ratio, heights, x_c)
         response = np.full((3, 2), math.nan)
-        if o.refine_iterations > 0 and n_lines >= 2:
-            try:
-                response = self._twist_response(edges, phi, theta, psi, zeta if use_sag else None, shape_deg,
-                                                 bev.grid, zeta0, float(np.mean(x_rows)))
-            except VisionError:
-                pass                      # no response: the filter keeps the uniform-twist model
+        if o.refine_iterations > 0 and model.linear is not None:
+            response = self._twist_response(model, H, x_c, zeta, phi, theta, psi, float(np.mean(x_rows)))
         zeta_sigma = model.zeta_free_sigma if math.isfinite(model.zeta_free_sigma) else model.sigma_dzeta
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
@@ -853,38 +846,22 @@ class Estimator:
         """Lane model of the edges projected onto the road at pose ``R``, height ``H``; with
         ``zeta`` (not None), onto the surface of that vertical curvature, fitting its correction
         with the prior ``zeta_prior = (mean, sigma)`` (1/m)."""
-        return self._fit_projected(edges, self._project(edges, R, H, zeta, x0), H, deg, grid, select, zeta, x0,
-                                   zeta_prior)
-
-    def _project(self, edges: list[_Edge], R, H, zeta: float | None, x0: float):
-        """The edges' points on the road (:func:`vision.ipm.ground_from_rays`): ``(x, y, q, ok,
-        counts, bounds)``, ``q`` the metres per pixel along image cuts (None for BEV points),
-        ``ok`` the points inside the fit's range, ``counts`` of them per edge."""
         rays, bounds, steps = _stack_edges(edges)
         z = 0.0 if zeta is None else zeta
         x, y = ground_from_rays(rays, R, H, z, x0)
-        q = None
-        if edges[0].from_image:
+        from_image = edges[0].from_image
+        if from_image:
             # Metres of lateral position per pixel along each cut (the measurement's direction).
             _, y2 = ground_from_rays(rays + steps, R, H, z, x0)
-            q = np.abs(y2 - y)
+            q_all = np.abs(y2 - y)
         ok, counts = _in_range(x, bounds, 0.5, self.options.fit_range_m)   # NaN (above the horizon) is out
         if counts.min() < 3:
             raise VisionError("an edge lies above the horizon at this pose")
-        return x, y, q, ok, counts, bounds
-
-    def _fit_projected(self, edges: list[_Edge], proj, H, deg, grid: BevGrid, select: bool, zeta: float | None,
-                       x0: float, zeta_prior: tuple[float, float], y=None) -> LaneModel:
-        """:meth:`_model` of points projected by :meth:`_project` (``y``: other lateral positions
-        for the same points)."""
-        x, y0, q, ok, counts, _ = proj
-        y = y0 if y is None else y
-        z = 0.0 if zeta is None else zeta
         # BEV rows far away re-sample image rows (f_y H / x^2 rows per metre against 1 / dx);
         # cuts in the image are one per image row or column.
-        independent = math.inf if q is not None else self.camera.fy * H * grid.dx_m
+        independent = math.inf if from_image else self.camera.fy * H * grid.dx_m
         model = fit_lane_model_points(x[ok], y[ok], counts, [e.line for e in edges], [e.side for e in edges], deg,
-                                      independent, q=q[ok] if q is not None else None, select=select,
+                                      independent, q=q_all[ok] if from_image else None, select=select,
                                       sag=None if zeta is None else (H, x0, z))
         if zeta is not None:
             model = model.with_dzeta_prior(zeta_prior[0] - z, zeta_prior[1])
@@ -897,8 +874,8 @@ class Estimator:
                 model.zeta_free_sigma = free_sigma
         return model
 
-    def _twist_response(self, edges: list[_Edge], phi: float, theta: float, psi: float, zeta: float | None,
-                        deg: int, grid: BevGrid, zeta_prior, x_ahead_m: float) -> np.ndarray:
+    def _twist_response(self, model: LaneModel, H: float, x0: float, zeta: float, phi: float, theta: float,
+                        psi: float, x_ahead_m: float) -> np.ndarray:
         """How the outputs respond to the road twisting in view: ``(3, 2)``, rows curvature
         (1/m per rad/m), pitch and yaw (rad per rad/m), columns the twist at the contact point
         and at ``x_ahead_m`` (the cross-sections), the twist ``tau(x) = d bank / dx`` linear
@@ -912,54 +889,46 @@ class Estimator:
         point at lateral position ``y`` lies ``dz = (y - y_c(x)) b(x) + y_c(x0) tau(x0) u`` above
         the tangent plane (the last term keeps the plane tangent at the vehicle); projected
         onto the estimator's surface it appears displaced by ``(y - x y') dz / D``, the
-        vertical-curvature column's lever (:mod:`vision.lanemodel`). The lane model refitted to
-        the final pose's points so displaced (by :data:`_TWIST_STEP_RAD_M`) gives the response
-        to first order, for the two profiles ``tau = 1 - u / u_L`` and ``tau = u / u_L`` up to
-        ``u_L`` (1 beyond; 0 and 1 for the first). On the simulator's runoffs, with the true
-        twists, it takes the curvature error near runoffs from 2.04 / 3.58 / 0.62 to 1.05 / 1.26 /
-        0.48e-3 1/m and the yaw error from 1.07 / 1.16 / 0.67 to 0.44 / 0.45 / 0.31 deg RMS on the
-        three HD drives (the uniform twist model: yaw 0.57 / 0.93 / 0.23)."""
-        H, x0 = self.surface_of(phi, theta, psi)
-        R = _R_o_from_cp(phi, theta, psi)
-        proj = self._project(edges, R, H, zeta, x0)
-        x, y, _, _, counts, bounds = proj
-        base = self._fit_projected(edges, proj, H, deg, grid, False, zeta, x0, zeta_prior)
-        J = base.n_lines
-        k_of = np.repeat(np.arange(counts.size), np.diff(bounds))
-        j_of = base.edge_line[k_of]
+        vertical-curvature column's lever (:mod:`vision.lanemodel`). The lane model's linear
+        response to its points so displaced (:meth:`vision.lanemodel.LaneModel.linear_response`,
+        the fit's weights held), through the outputs' first-order rows, gives the response for
+        the two profiles ``tau = 1 - u / u_L`` and ``tau = u / u_L`` up to ``u_L`` (0 and 1
+        beyond). On the simulator's runoffs, with the true
+        twists, it takes the curvature error near runoffs from 1.90 / 3.36 / 0.59 to 1.35 / 1.36 /
+        0.33e-3 1/m, the yaw error from 1.07 / 1.16 / 0.81 to 0.52 / 0.46 / 0.16 deg and the pitch
+        error from 0.40 / 0.35 / 0.38 to 0.14 / 0.11 / 0.09 deg RMS on the three HD drives (the
+        uniform model: yaw 0.53 / 0.87 / 0.28, pitch 0.15 / 0.13 / 0.13; the same with the
+        vision's own twist ahead). About 0.35 ms a frame; refitting the lane model to displaced
+        points instead gave the same gains within 1-3 % (median) at 0.85 ms."""
+        x, y, k_of = model.linear[0], model.linear[1], model.linear[2]
+        J = model.n_lines
+        j_of = model.edge_line[k_of]
         slope = np.empty_like(x)
         for j in range(J):
             sel = j_of == j
-            slope[sel] = base.slope(j, x[sel])
+            slope[sel] = model.slope(j, x[sel])
         # the road turns about its centre: the middle line of three, else midway between two
         mid = [1] if J == 3 else [0, J - 1]
-        pivot = np.mean([0.5 * (base.y(2 * j, x) + base.y(2 * j + 1, x)) for j in mid], axis=0)
-        pivot0 = float(np.mean([0.5 * (base.y(2 * j, x0) + base.y(2 * j + 1, x0)) for j in mid]))
+        pivot = np.mean([0.5 * (model.y(2 * j, x) + model.y(2 * j + 1, x)) for j in mid], axis=0)
+        pivot0 = float(np.mean([0.5 * (model.y(2 * j, x0) + model.y(2 * j + 1, x0)) for j in mid]))
         u = x - x0
         xl = max(x_ahead_m - x0, 1.0)
-        z = 0.0 if zeta is None else zeta
-        lever = (y - x * slope) / (H - 0.5 * z * u * u + z * u * x)       # d y_projected / d height
+        lever = (y - x * slope) / (H - 0.5 * zeta * u * u + zeta * u * x)      # d y_projected / d height
+        # first-order rows of the outputs in the lane model's parameters
+        R = _R_o_from_cp(phi, theta, psi)
+        rows = np.zeros((3, model.cov.shape[0]))
+        if model.c.size:
+            rows[0] = np.mean([model.curvature_row(j, x0) for j in (0, J - 1)], axis=0)
+        cam = _direction_rows(model, H, x0, R)                                  # psi, theta
+        Jv = _vehicle_jacobian(float(phi), float(theta), float(psi), self.mount.tilt_rad)
+        rows[1] = Jv[1, 1] * cam[1] + Jv[1, 2] * cam[0]                         # vehicle pitch
+        rows[2] = Jv[2, 1] * cam[1] + Jv[2, 2] * cam[0]                         # vehicle yaw
         out = np.zeros((3, 2))
-        ref = self._response_outputs(base, H, x0, R, phi)
         for col, (db, lin) in enumerate(((np.where(u < xl, u - u * u / (2 * xl), 0.5 * xl), u),
                                          (np.where(u < xl, u * u / (2 * xl), u - 0.5 * xl), 0.0 * u))):
             dz = (y - pivot) * db + pivot0 * lin        # heights over the tangent plane per rad/m
-            m = self._fit_projected(edges, proj, H, deg, grid, False, zeta, x0, zeta_prior,
-                                    y=y + _TWIST_STEP_RAD_M * dz * lever)
-            out[:, col] = (self._response_outputs(m, H, x0, R, phi) - ref) / _TWIST_STEP_RAD_M
+            out[:, col] = rows @ model.linear_response(dz * lever)
         return out
-
-    def _response_outputs(self, model: LaneModel, H: float, x0: float, R, phi: float) -> np.ndarray:
-        """Curvature at the contact point and the vehicle's pitch and yaw from a lane model (as
-        :meth:`_solve` reports them)."""
-        J = model.n_lines
-        k = float(np.mean([model.curvature(j, x0) for j in (0, J - 1)])) if model.c.size else 0.0
-        d = lane_direction(model, H, lines=[0, J - 1], x0_m=x0)
-        if d is None:
-            return np.array([k, math.nan, math.nan])
-        psi, theta = yaw_pitch_from_r3(R.T @ d)
-        (_, pitch, yaw), _ = vehicle_from_camera_xyz(phi, theta, psi, self.mount.tilt_rad)
-        return np.array([k, pitch, yaw])
 
     def _cross_x(self, model: LaneModel):
         """Cross-sections along the road: one at the farthest of the edges' near ends (the
@@ -1007,20 +976,7 @@ class Estimator:
         total = cq.sum()
         row_phi = -np.einsum("rg,rgp->p", cq, d_alpha) / total if total != 0 else np.full(P, np.inf)
         # ---- pitch and yaw: the lane direction of the outer lines ----
-        outer = (0, J - 1)
-        M = np.zeros((4, P))
-        vals = np.zeros(4)
-        for n, j in enumerate(outer):
-            ks = np.flatnonzero(model.edge_line == j)
-            y_j, rows_j = model.mean_y_and_rows(ks, x0)
-            M[2 * n], vals[2 * n] = rows_j[0], y_j[0]
-            M[2 * n + 1] = model.slope_row(j, x0)
-            vals[2 * n + 1] = float(model.slope(j, x0))
-        e = np.array([1e-4, 1e-6, 1e-4, 1e-6])               # m, rad
-        D = np.concatenate([np.diag(e), -np.diag(e)]) + vals     # (8, 4)
-        yp = _yaw_pitch_two_lines(D, H, x0, R)                   # (8, 2): psi, theta
-        J_yp = ((yp[:4] - yp[4:]) / (2.0 * e[:, None])).T        # (2, 4)
-        rows_ang = J_yp @ M                                      # (2, P)
+        rows_ang = _direction_rows(model, H, x0, R)              # (2, P): psi, theta
         Jc = np.stack([row_phi, rows_ang[1], rows_ang[0]])       # phi, theta, psi
         cov = Jc @ model.cov @ Jc.T
         cov[0, 0] += sig_f**2
@@ -1097,10 +1053,10 @@ def _vehicle_sigmas(phi, theta, psi, cov_cam, tilt):
 
 
 @nb.njit(cache=True)
-def _vehicle_sigmas_nb(phi, theta, psi, cov_cam, tilt):  # pragma: no cover (numba)
-    """:func:`_vehicle_sigmas`, compiled (the six rotations of the differences)."""
+def _vehicle_jacobian(phi, theta, psi, tilt):  # pragma: no cover (numba)
+    """``d(vehicle roll, pitch, yaw) / d(camera phi, theta, psi)`` (central differences of eq. (22))."""
     e = 1e-6
-    J = np.empty((3, 3))                     # d(vehicle roll, pitch, yaw) / d(camera phi, theta, psi)
+    J = np.empty((3, 3))
     for k in range(3):
         ang = np.array([phi, theta, psi])
         ang[k] += e
@@ -1109,6 +1065,13 @@ def _vehicle_sigmas_nb(phi, theta, psi, cov_cam, tilt):  # pragma: no cover (num
         rm = rpy_from_camera_xyz_scalar(ang[0], ang[1], ang[2], tilt)
         for i in range(3):
             J[i, k] = (rp[i] - rm[i]) / (2.0 * e)
+    return J
+
+
+@nb.njit(cache=True)
+def _vehicle_sigmas_nb(phi, theta, psi, cov_cam, tilt):  # pragma: no cover (numba)
+    """:func:`_vehicle_sigmas`, compiled (the six rotations of the differences)."""
+    J = _vehicle_jacobian(phi, theta, psi, tilt)
     cov = J @ cov_cam @ J.T
     return (math.sqrt(max(cov[0, 0], 0.0)), math.sqrt(max(cov[1, 1], 0.0)), math.sqrt(max(cov[2, 2], 0.0)))
 
@@ -1136,6 +1099,26 @@ def _heights(xs, H: float, x0: float, zeta: float) -> np.ndarray:
     """Camera height above the road at ``xs`` (m ahead of the nadir): ``H - zeta (x - x0)^2 / 2``."""
     xs = np.asarray(xs, float)
     return H - 0.5 * zeta * (xs - x0) ** 2
+
+
+def _direction_rows(model: LaneModel, H: float, x0: float, R) -> np.ndarray:
+    """First-order rows ``(2, P)`` of the camera's ``(psi1, theta1)`` from the lane direction of
+    the outer lines at ``x0`` (:func:`vision.lanemodel.lane_direction`), in the lane model's
+    parameters (central differences of :func:`_yaw_pitch_two_lines` in ``y_j(x0)``, ``y_j'(x0)``)."""
+    J = model.n_lines
+    M = np.zeros((4, model.cov.shape[0]))
+    vals = np.zeros(4)
+    for n, j in enumerate((0, J - 1)):
+        ks = np.flatnonzero(model.edge_line == j)
+        y_j, rows_j = model.mean_y_and_rows(ks, x0)
+        M[2 * n], vals[2 * n] = rows_j[0], y_j[0]
+        M[2 * n + 1] = model.slope_row(j, x0)
+        vals[2 * n + 1] = float(model.slope(j, x0))
+    e = np.array([1e-4, 1e-6, 1e-4, 1e-6])               # m, rad
+    D = np.concatenate([np.diag(e), -np.diag(e)]) + vals     # (8, 4)
+    yp = _yaw_pitch_two_lines(D, H, x0, R)                   # (8, 2): psi, theta
+    J_yp = ((yp[:4] - yp[4:]) / (2.0 * e[:, None])).T        # (2, 4)
+    return J_yp @ M
 
 
 def _roll_rows(model: LaneModel, xs, use_eq10: bool, ratio: float, heights, x0: float):

@@ -83,6 +83,11 @@ class LaneModel:
     sag: tuple | None = None
     #: 1-sigma of ``zeta`` before it was set to 0 for want of significance (NaN: it was not).
     zeta_free_sigma: float = math.nan
+    #: The fit's points and second-pass weights, vertical-curvature column and inverse normal
+    #: matrix, for :meth:`linear_response` (None: not from :func:`fit_lane_model_points`).
+    linear: tuple | None = None
+    #: The priors on ``dzeta`` applied since the fit, ``(index, gain)`` each (:meth:`with_dzeta_prior`).
+    prior_gains: tuple = ()
 
     def __post_init__(self) -> None:
         if self.line_scale is None:
@@ -120,7 +125,23 @@ class LaneModel:
         out = object.__new__(LaneModel)          # a copy with new parameters (no __init__: 1670 a second)
         out.__dict__.update(self.__dict__)
         out.a, out.b, out.c, out.dzeta, out.cov = p[:K], p[K:K + J], p[K + J:K + J + nc], float(p[i]), cov
+        out.prior_gains = self.prior_gains + ((i, g),)
         return out
+
+    def linear_response(self, dy: np.ndarray) -> np.ndarray:
+        """Change of the parameters ``[a, b, c, dzeta]`` when the fit's points (``linear[0:2]``,
+        ``x`` and ``y`` in the fit's order) move laterally by ``dy``, the weights held:
+        ``Ai A^T W dy``, then each prior on ``dzeta`` applied since (a Kalman update is linear in
+        the parameters). First order, exact for the second pass's weighted least squares."""
+        x, _, k_of, w, zc, Ai, nz = self.linear
+        K, J, nc = self.a.size, self.b.size, self.c.size
+        r = _linear_rhs(x / _XS, w, zc, k_of, self.edge_line, self.line_scale, K, J, nc, nz,
+                        np.ascontiguousarray(dy, np.float64))
+        dp = Ai @ r
+        dp[K:K + J] /= _XS                  # slopes per t = x / 10 -> per metre
+        for i, g in self.prior_gains:
+            dp = dp - g * dp[i]
+        return dp
 
     def zeta_column(self, k: int, x) -> np.ndarray:
         """``u^2 / (2 D) (y_k - x y_k')`` at ``x``: the change of the projected ``y`` of edge ``k``
@@ -273,6 +294,25 @@ def _mean_y_and_rows(a, b, c, line_scale, edge_line, ks, x, P):  # pragma: no co
 
 
 @nb.njit(cache=True)
+def _linear_rhs(t, w, zc, k_of, edge_line, scale, K, J, nc, nz, dy):  # pragma: no cover (numba)
+    """``A^T W dy`` of the fit's design (columns ``a_k``, ``b_j t``, ``s_j t^p``, ``zc``)."""
+    r = np.zeros(K + J + nc + nz)
+    for i in range(t.size):
+        k = k_of[i]
+        j = edge_line[k]
+        wi = w[i] * dy[i]
+        r[k] += wi
+        r[K + j] += wi * t[i]
+        tp = t[i] * t[i]
+        for c in range(nc):
+            r[K + J + c] += wi * scale[j] * tp
+            tp *= t[i]
+        if nz:
+            r[K + J + nc] += wi * zc[i]
+    return r
+
+
+@nb.njit(cache=True)
 def _line_at(a, b, c, line_scale, edge_line, j, x):  # pragma: no cover (numba)
     """Line ``j``'s mean lateral position over its edges and its slope at ``x``."""
     t = x / _XS
@@ -411,13 +451,15 @@ def _fit(pts: _Points, shape_degree: int, rows_per_m: float) -> LaneModel:
     nz = 0 if pts.sag is None else 1
     if pts.x.size < K + J + nc + nz + 2:
         raise VisionError("too few edge points for the lane model")
-    ok, p, cov, s2, scale = _fit_core(pts.x, pts.y, pts.q, pts.z, pts.k_of, pts.edge_line, K, J, nc, nz,
-                                      float(min(rows_per_m, 1e300)))
+    ok, p, cov, s2, scale, w, zc, Ai = _fit_core(pts.x, pts.y, pts.q, pts.z, pts.k_of, pts.edge_line, K, J, nc, nz,
+                                                 float(min(rows_per_m, 1e300)))
     if not ok:
         raise VisionError("lane model is singular (an edge without points?)")
-    return LaneModel(p[:K], p[K:K + J], p[K + J:K + J + nc], cov, pts.edge_line, pts.edge_side, pts.x_min.copy(),
-                     pts.x_max.copy(), float(np.sqrt(s2)), int(pts.x.size), scale,
-                     float(p[K + J + nc]) if nz else 0.0, pts.sag)
+    m = LaneModel(p[:K], p[K:K + J], p[K + J:K + J + nc], cov, pts.edge_line, pts.edge_side, pts.x_min.copy(),
+                  pts.x_max.copy(), float(np.sqrt(s2)), int(pts.x.size), scale,
+                  float(p[K + J + nc]) if nz else 0.0, pts.sag)
+    m.linear = (pts.x, pts.y, pts.k_of, w, zc, Ai, nz)
+    return m
 
 
 @nb.njit(cache=True)
@@ -505,7 +547,9 @@ def _spd_inverse(A, out):  # pragma: no cover (numba)
 
 @nb.njit(cache=True)
 def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma: no cover (numba)
-    """Two passes of weighted normal equations; returns ``(ok, p, cov, s2, line_scale)``.
+    """Two passes of weighted normal equations; returns ``(ok, p, cov, s2, line_scale, w, zc,
+    Ai)``, the last three the second pass's weights, vertical-curvature column and inverse
+    normal matrix (per ``t = x / 10`` for the slopes: :meth:`LaneModel.linear_response`).
 
     Pass 1: weights ``indep(x)``. Pass 2: ``indep(x) / var(x)`` with ``var = s_b^2 + s_i^2 x^2``
     fitted to pass 1's squared residuals, and the shape columns of line ``j`` scaled by
@@ -622,7 +666,7 @@ def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma:
                 A[u, v] = A[v, u]
         ok = _spd_inverse(A, Ai)
         if not ok:
-            return False, p, Ai, 0.0, scale
+            return False, p, Ai, 0.0, scale, w, zc, Ai
         p = Ai @ rhs
     # residuals, variance, lag-1 autocorrelation along each edge
     _residuals(p, y, t, k_of, edge_line, scale, zc, K, J, nc, nz, res)
@@ -645,7 +689,7 @@ def _fit_core(x, y, q, z, k_of, edge_line, K, J, nc, nz, rows_per_m):  # pragma:
         for q_ in range(P):
             cov[K + j, q_] /= 10.0
             cov[q_, K + j] /= 10.0
-    return True, p, cov, s2, scale
+    return True, p, cov, s2, scale, w, zc, Ai
 
 
 def lane_direction(model: LaneModel, height_m: float, lines=None, x0_m: float = 0.0) -> np.ndarray | None:
