@@ -176,15 +176,8 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
     if r.truth is not None and "bank_deg" in r.truth:
         tt = r.truth["t_s"].to_numpy()
         axes[1].plot(tt - t0, np.gradient(r.truth["bank_deg"].to_numpy(), tt), "k--", lw=1.0, label="truth")
-    axes[0].set_ylabel("curvature [1/m]")
-    axes[1].set_ylabel("bank rate [deg/s]")
-    axes[0].set_title("the road: lane curvature and bank rate")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8, ncol=4)
-    axes[-1].set_xlabel("time [s]")
-    figs["road.png"] = _fig_to_png(fig)
-    plt.close(fig)
+    _finish(figs, "road.png", fig, axes, ("curvature [1/m]", "bank rate [deg/s]"),
+            "the road: lane curvature and bank rate", ncol=4)
 
     # 5. sensor biases
     fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
@@ -196,16 +189,23 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
                          color=f"C{i}", lw=0.8)
             axes[1].plot(r.imu_truth["t_s"] - t0, r.imu_truth[f"accel_bias_{ax_name}_m_s2"], "--",
                          color=f"C{i}", lw=0.8)
-    axes[0].set_ylabel("gyro bias [deg/s]")
-    axes[1].set_ylabel("accel bias [m/s^2]")
-    axes[0].set_title("sensor bias estimates (dashed: truth)")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8, ncol=3)
-    axes[-1].set_xlabel("time [s]")
-    figs["biases.png"] = _fig_to_png(fig)
-    plt.close(fig)
+    _finish(figs, "biases.png", fig, axes, ("gyro bias [deg/s]", "accel bias [m/s^2]"),
+            "sensor bias estimates (dashed: truth)", ncol=3)
     return figs
+
+
+def _finish(figs: dict, name: str, fig, axes, ylabels, title: str, ncol: int) -> None:
+    """Labels, grid and legends of a stack of time plots, then the PNG into ``figs[name]``."""
+    import matplotlib.pyplot as plt
+
+    for ax, label in zip(axes, ylabels):
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8, ncol=ncol)
+    axes[0].set_title(title)
+    axes[-1].set_xlabel("time [s]")
+    figs[name] = _fig_to_png(fig)
+    plt.close(fig)
 
 
 def _table_html(summary: dict) -> str:
