@@ -69,8 +69,8 @@ so that the bank rate is no longer only what the bursts of deferred rolls imply.
 also moves the vision's yaw and lane curvature; where it changes across the view (a runoff
 coming into view) the uniform-twist model misses most of it, and the estimator's own response
 to the twist here and ahead (``VisionMeasurement.twist_response``) corrects yaw and curvature
-with ``tau_here = bank_rate / v`` and ``tau_ahead`` the measured twist (pitch keeps the
-uniform model, which did better for it). Measured on
+with ``tau_here = bank_rate / v`` and ``tau_ahead`` the measured twist (``tau_here`` where the
+frame measured none; pitch keeps the uniform model, which did better for it). Measured on
 the three HD drives (``tools/bench_fusion.py``): NEES share in band 61 / 73 / 92 -> 78 / 83 /
 93 %, roll 0.133 / 0.093 / 0.125 -> 0.132 / 0.069 / 0.123 deg, bank 0.260 / 0.198 / 0.557 ->
 0.275 / 0.177 / 0.587 deg.
@@ -676,12 +676,17 @@ class AttitudeEKF(ExtendedKalmanFilter):
                 g = m.twist_response
                 if all(math.isfinite(gi) for gi in g):
                     # Yaw and lane curvature: the estimator's own response to the twist here
-                    # (bank rate) and at its cross-sections (its measured twist, else the rate
-                    # the deferred rolls show), a twist changing across the view included.
+                    # (bank rate) and at its cross-sections (its measured twist; where it measured
+                    # none, the twist here, a uniform twist), a twist changing across the view
+                    # included. Where the frame measured no twist, the rate the deferred rolls
+                    # imply ahead did better on the HD drives (left-hand bank 0.230 against 0.276
+                    # deg) but ruined the bundled 640x360 drive, whose rolls are noisier (bank
+                    # 0.453 -> 0.657, world roll 0.346 -> 0.737 deg, worse than the IMU alone;
+                    # with the twist here 0.517 and 0.583, the IMU alone's 0.588).
                     # Pitch keeps the uniform model: with the response it was worse on all
                     # three benchmark drives (0.051 / 0.031 / 0.021 -> 0.065 / 0.045 / 0.045 deg).
                     tau_here = self.x[S.BANK_RATE] / v
-                    tau_ahead = m.road_twist_rad_m if math.isfinite(m.road_twist_rad_m) else bank_rate_ahead / v
+                    tau_ahead = m.road_twist_rad_m if math.isfinite(m.road_twist_rad_m) else tau_here
                     effect[2] = g[4] * tau_here + g[5] * tau_ahead
                     curvature_effect = g[0] * tau_here + g[1] * tau_ahead
                 hx = hx + effect
