@@ -969,7 +969,6 @@ class Estimator:
         and their correlations through the model), and the lane direction of the two outer lines
         (central differences of :func:`lane_direction` in ``y_j(x0)``, ``y_j'(x0)``). ``sig_f``:
         the painted widths' tolerance as an error of eq. (8), rad."""
-        J = model.n_lines
         P = model.cov.shape[0]
         alphas, coef, d_alpha = _roll_rows(model, xs, use_eq10, ratio, heights, x0)
         q = 1.0 / np.cos(alphas) ** 2
