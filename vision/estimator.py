@@ -42,6 +42,11 @@ side by ``tools/bench_vision.py``):
 * several cross-sections, known unequal marker widths, and a plausibility check of the lines
   (marker widths and spacing on the road) that turns curbs and absurd balances into
   ``valid=False``.
+
+For the fusion filter, beyond the angles: the road's twist at the cross-sections (their own
+rolls' slope along the road, three lines: :func:`_road_twist`) and the outputs' first-order
+response to a twist at the vehicle and at the cross-sections (:meth:`Estimator._twist_response`),
+with which the filter models what a superelevation runoff in view does to yaw and curvature.
 """
 
 from __future__ import annotations
