@@ -732,9 +732,12 @@ class Estimator:
         sig_f = 0.0
         if not use_eq10 and o.marker_width_tolerance_m > 0:
             sig_f = o.marker_width_tolerance_m / H * math.hypot(1.0, ratio)
-        cov_cam = self._camera_covariance(model, x_rows, use_eq10, ratio, heights, H, x_c,
-                                          _R_o_from_cp(phi, theta, psi), sig_f)
-        s_roll, s_pitch, s_yaw = _vehicle_sigmas(phi, theta, psi, cov_cam, self.mount.tilt_rad)
+        # first-order rows shared by the covariance, the road twist and the twist response
+        roll_rows = _roll_rows(model, x_rows, use_eq10, ratio, heights, x_c)
+        dir_rows = _direction_rows(model, H, x_c, _R_o_from_cp(phi, theta, psi))
+        J_vehicle = _vehicle_jacobian(float(phi), float(theta), float(psi), self.mount.tilt_rad)
+        cov_cam = self._camera_covariance(model, roll_rows, dir_rows, sig_f)
+        s_roll, s_pitch, s_yaw = _vehicle_sigmas(J_vehicle, cov_cam)
         s_roll, s_pitch, s_yaw = (math.hypot(s, m) for s, m in zip((s_roll, s_pitch, s_yaw), _ANGLE_MODEL_SIGMA_RAD))
         # Curvature, lateral offset, spacing at the contact point, from the outermost lines used.
         all_centres = [0.5 * float(model.y(2 * j, x_c) + model.y(2 * j + 1, x_c)) for j in range(n_lines)]
@@ -742,10 +745,10 @@ class Estimator:
         offsets = tuple(c + float(cam_off[1]) for c in all_centres)
         curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
         curvature_sigma = self._curvature_sigma(model, x_c, n_lines, curvature)
-        twist, twist_sigma = _road_twist(model, x_rows, use_eq10, ratio, heights, x_c)
+        twist, twist_sigma = _road_twist(model, x_rows, roll_rows, use_eq10)
         response = np.full((3, 2), math.nan)
         if o.refine_iterations > 0 and model.linear is not None:
-            response = self._twist_response(model, H, x_c, zeta, phi, theta, psi, float(np.mean(x_rows)))
+            response = self._twist_response(model, H, x_c, zeta, float(np.mean(x_rows)), dir_rows, J_vehicle)
         zeta_sigma = model.zeta_free_sigma if math.isfinite(model.zeta_free_sigma) else model.sigma_dzeta
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
@@ -879,8 +882,9 @@ class Estimator:
                 model.zeta_free_sigma = free_sigma
         return model
 
-    def _twist_response(self, model: LaneModel, H: float, x0: float, zeta: float, phi: float, theta: float,
-                        psi: float, x_ahead_m: float) -> np.ndarray:
+    @staticmethod
+    def _twist_response(model: LaneModel, H: float, x0: float, zeta: float, x_ahead_m: float, dir_rows,
+                        J_vehicle) -> np.ndarray:
         """How the outputs respond to the road twisting in view: ``(3, 2)``, rows curvature
         (1/m per rad/m), pitch and yaw (rad per rad/m), columns the twist at the contact point
         and at ``x_ahead_m`` (the cross-sections), the twist ``tau(x) = d bank / dx`` linear
@@ -920,13 +924,12 @@ class Estimator:
         u = x - x0
         xl = max(x_ahead_m - x0, 1.0)
         lever = (y - x * slope) / (H - 0.5 * zeta * u * u + zeta * u * x)      # d y_projected / d height
-        # first-order rows of the outputs in the lane model's parameters
-        R = _R_o_from_cp(phi, theta, psi)
+        # first-order rows of the outputs in the lane model's parameters (``dir_rows``: the
+        # camera's psi1, theta1, :func:`_direction_rows`; ``J_vehicle``: :func:`_vehicle_jacobian`)
         rows = np.zeros((3, model.cov.shape[0]))
         if model.c.size:
             rows[0] = np.mean([model.curvature_row(j, x0) for j in (0, J - 1)], axis=0)
-        cam = _direction_rows(model, H, x0, R)                                  # psi, theta
-        Jv = _vehicle_jacobian(float(phi), float(theta), float(psi), self.mount.tilt_rad)
+        Jv, cam = J_vehicle, dir_rows
         rows[1] = Jv[1, 1] * cam[1] + Jv[1, 2] * cam[0]                         # vehicle pitch
         rows[2] = Jv[2, 1] * cam[1] + Jv[2, 2] * cam[0]                         # vehicle yaw
         out = np.zeros((3, 2))
@@ -967,22 +970,24 @@ class Estimator:
         Y = model.y_edges([0, 1, 2 * j1, 2 * j1 + 1], xs)
         return np.arctan(Y.T / h), coefficients_eq8(ratio)
 
-    def _camera_covariance(self, model: LaneModel, xs, use_eq10, ratio, heights, H, x0, R, sig_f):
+    @staticmethod
+    def _camera_covariance(model: LaneModel, roll_rows, dir_rows, sig_f):
         """3x3 covariance of the camera's XYZ ``(phi1, theta1, psi1)`` from the lane model's
         covariance, first order: the root of eqs. (8)/(10) at the cross-sections (implicit
         function: ``d phi = -sum c_k sec^2(alpha_k) d alpha_k / sum c_k sec^2(alpha_k)``, all rows
         and their correlations through the model), and the lane direction of the two outer lines
-        (central differences of :func:`lane_direction` in ``y_j(x0)``, ``y_j'(x0)``). ``sig_f``:
-        the painted widths' tolerance as an error of eq. (8), rad."""
+        (central differences of :func:`lane_direction` in ``y_j(x0)``, ``y_j'(x0)``).
+        ``roll_rows``: :func:`_roll_rows` at the cross-sections; ``dir_rows``:
+        :func:`_direction_rows`; ``sig_f``: the painted widths' tolerance as an error of eq. (8),
+        rad."""
         P = model.cov.shape[0]
-        alphas, coef, d_alpha = _roll_rows(model, xs, use_eq10, ratio, heights, x0)
+        alphas, coef, d_alpha = roll_rows
         q = 1.0 / np.cos(alphas) ** 2
         cq = coef[None, :] * q
         total = cq.sum()
         row_phi = -np.einsum("rg,rgp->p", cq, d_alpha) / total if total != 0 else np.full(P, np.inf)
-        # ---- pitch and yaw: the lane direction of the outer lines ----
-        rows_ang = _direction_rows(model, H, x0, R)              # (2, P): psi, theta
-        Jc = np.stack([row_phi, rows_ang[1], rows_ang[0]])       # phi, theta, psi
+        # ---- pitch and yaw: the lane direction of the outer lines (dir_rows: psi, theta) ----
+        Jc = np.stack([row_phi, dir_rows[1], dir_rows[0]])       # phi, theta, psi
         cov = Jc @ model.cov @ Jc.T
         cov[0, 0] += sig_f**2
         return cov
@@ -1050,11 +1055,11 @@ def _in_range(x, bounds, lo, hi):  # pragma: no cover (numba)
     return ok, counts
 
 
-def _vehicle_sigmas(phi, theta, psi, cov_cam, tilt):
-    """Propagate the covariance of the camera's XYZ angles to the 1-sigma of the vehicle's ZYX
-    angles (central differences of eq. (22))."""
-    return _vehicle_sigmas_nb(float(phi), float(theta), float(psi), np.ascontiguousarray(cov_cam, dtype=float),
-                              float(tilt))
+def _vehicle_sigmas(J_vehicle: np.ndarray, cov_cam: np.ndarray) -> tuple[float, float, float]:
+    """The 1-sigma of the vehicle's ZYX angles from the covariance of the camera's XYZ angles,
+    through :func:`_vehicle_jacobian` (eq. (22), first order)."""
+    cov = J_vehicle @ cov_cam @ J_vehicle.T
+    return tuple(math.sqrt(max(float(cov[i, i]), 0.0)) for i in range(3))
 
 
 @nb.njit(cache=True)
@@ -1071,14 +1076,6 @@ def _vehicle_jacobian(phi, theta, psi, tilt):  # pragma: no cover (numba)
         for i in range(3):
             J[i, k] = (rp[i] - rm[i]) / (2.0 * e)
     return J
-
-
-@nb.njit(cache=True)
-def _vehicle_sigmas_nb(phi, theta, psi, cov_cam, tilt):  # pragma: no cover (numba)
-    """:func:`_vehicle_sigmas`, compiled (the six rotations of the differences)."""
-    J = _vehicle_jacobian(phi, theta, psi, tilt)
-    cov = J @ cov_cam @ J.T
-    return (math.sqrt(max(cov[0, 0], 0.0)), math.sqrt(max(cov[1, 1], 0.0)), math.sqrt(max(cov[2, 2], 0.0)))
 
 
 @nb.njit(cache=True)
@@ -1154,8 +1151,9 @@ def _roll_rows(model: LaneModel, xs, use_eq10: bool, ratio: float, heights, x0: 
     return alphas, coef, d_alpha
 
 
-def _road_twist(model: LaneModel, xs, use_eq10: bool, ratio: float, heights, x0: float) -> tuple[float, float]:
-    """The road's twist over the cross-sections ``xs``, rad/m, and its 1-sigma.
+def _road_twist(model: LaneModel, xs, roll_rows, use_eq10: bool) -> tuple[float, float]:
+    """The road's twist over the cross-sections ``xs``, rad/m, and its 1-sigma (``roll_rows``:
+    :func:`_roll_rows` there).
 
     Three lines (eq. (10)): each cross-section's roll equation, solved on its own, gives the
     camera's roll relative to the road there, ``phi - b(x)`` (``b(x)`` the bank change ahead, :mod:`vision.roll`):
@@ -1180,7 +1178,7 @@ def _road_twist(model: LaneModel, xs, use_eq10: bool, ratio: float, heights, x0:
         return math.nan, math.nan
     if xs.min() < model.x_min.max() - 1e-6 or xs.max() > model.x_max.min() + 1e-6:
         return math.nan, math.nan       # cross-sections across a gap: some line only extrapolated
-    alphas, coef, d_alpha = _roll_rows(model, xs, use_eq10, ratio, heights, x0)
+    alphas, coef, d_alpha = roll_rows
     cq = coef[None, :] * (1.0 / np.cos(alphas) ** 2)
     den = cq.sum(axis=1)                                             # (n_x,)
     if np.any(den == 0):
