@@ -164,23 +164,16 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
         e = e - sign * np.degrees(np.nan_to_num(v[col].to_numpy()) * tau)
         sig = v[f"{angle}_sigma_deg"].to_numpy()
         used = np.degrees(noise.vision_sigma_rad(np.radians(sig), np.nan_to_num(v[col].to_numpy()) * tau))
-        z = e / used
         ok = np.isfinite(e) & np.isfinite(sig)      # the last frames have no truth 10 ms later
-        out[angle] = [(float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])), float(np.sqrt(np.mean(z[m] ** 2))))
-                      if m.any() else (math.nan,) * 3 for m in (steady & ok, ~steady & ok)]
+        out[angle] = _steady_and_runoffs(e, sig, used, ok, steady)
     # The lane fit's other outputs the filter reads: the curvature (its own sigma, floored as the
     # filter floors it) and the lateral offset at the contact point (no sigma reported).
     e = v["curvature_1_m"].to_numpy() - tr["curvature_1_m"].to_numpy()
     sig = v["curvature_sigma_1_m"].to_numpy()
     used = noise.curvature_sigma_1_m(v["curvature_1_m"].to_numpy(), sig)
-    ok = np.isfinite(e) & np.isfinite(sig)
-    out["curvature"] = [(float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])),
-                         float(np.sqrt(np.mean((e[m] / used[m]) ** 2)))) if m.any() else (math.nan,) * 3
-                        for m in (steady & ok, ~steady & ok)]
+    out["curvature"] = _steady_and_runoffs(e, sig, used, np.isfinite(e) & np.isfinite(sig), steady)
     e = v["lateral_offset_m"].to_numpy() - tr["lateral_offset_m"].to_numpy()
-    ok = np.isfinite(e)
-    out["lateral"] = [(float(np.sqrt(np.mean(e[m] ** 2))), math.nan, math.nan) if m.any() else (math.nan,) * 3
-                      for m in (steady & ok, ~steady & ok)]
+    out["lateral"] = _steady_and_runoffs(e, None, None, np.isfinite(e), steady)
     # The road twist (three lines) against the truth's d bank / ds at the lookahead, the sigma
     # floored as the filter floors it; and the share of frames that measured it.
     got = v["road_twist_deg_per_m"].to_numpy()
@@ -192,9 +185,22 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     used = np.degrees(noise.twist_sigma_rad_m(np.radians(got), np.radians(sig)))
     ok = np.isfinite(e)
     out["twist_share"] = float(ok.mean())
-    out["twist"] = [(float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])),
-                     float(np.sqrt(np.mean((e[m] / used[m]) ** 2)))) if m.any() else (math.nan,) * 3
-                    for m in (steady & ok, ~steady & ok)]
+    out["twist"] = _steady_and_runoffs(e, sig, used, ok, steady)
+    return out
+
+
+def _steady_and_runoffs(e, sig, used, ok, steady) -> list[tuple[float, float, float]]:
+    """``(RMS error, median own sigma, RMS of error / sigma used)`` on steady road and near
+    runoffs, over the samples ``ok``; without a sigma (``sig`` None) only the RMS error."""
+    out = []
+    for m in (steady & ok, ~steady & ok):
+        if not m.any():
+            out.append((math.nan,) * 3)
+        elif sig is None:
+            out.append((float(np.sqrt(np.mean(e[m] ** 2))), math.nan, math.nan))
+        else:
+            out.append((float(np.sqrt(np.mean(e[m] ** 2))), float(np.median(sig[m])),
+                        float(np.sqrt(np.mean((e[m] / used[m]) ** 2)))))
     return out
 
 
