@@ -110,13 +110,8 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
         band(ax, a, "fused", "tab:blue")
         if truth is not None and f"{a}_deg" in truth:
             ax.plot(tf, truth[f"{a}_deg"], "k--", lw=1.0, label="truth")
-        ax.set_ylabel(f"{a} [deg]")
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8, ncol=4)
-    axes[0].set_title(f"{r.title}: attitude relative to the road and road bank")
-    axes[-1].set_xlabel("time [s]")
-    figs["attitude.png"] = _fig_to_png(fig)
-    plt.close(fig)
+    _finish(figs, "attitude.png", fig, axes, [f"{a} [deg]" for a in ("roll", "pitch", "yaw", "bank")],
+            f"{r.title}: attitude relative to the road and road bank", ncol=4)
 
     # 2. relative to gravity
     fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
@@ -126,13 +121,8 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             ax.plot(r.imu_only["t_s"] - t0, r.imu_only[f"{a}_deg"], color="tab:green", lw=1.0, label="IMU only")
         if truth is not None and f"{a}_deg" in truth:
             ax.plot(tf, truth[f"{a}_deg"], "k--", lw=1.0, label="truth")
-        ax.set_ylabel(f"{a} [deg]")
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8, ncol=4)
-    axes[0].set_title("attitude relative to gravity")
-    axes[-1].set_xlabel("time [s]")
-    figs["world.png"] = _fig_to_png(fig)
-    plt.close(fig)
+    _finish(figs, "world.png", fig, axes, ("roll_world [deg]", "pitch_world [deg]"), "attitude relative to gravity",
+            ncol=4)
 
     # 3. errors against truth with the 2-sigma envelope
     if truth is not None:
