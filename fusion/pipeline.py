@@ -19,11 +19,12 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from vision.video import TWIST_RESPONSE_COLUMNS
+
 from .ekf import S, relative_outputs
 from .engine import FusionOptions, FusionStream
 from .errors import InputError
 from .smoother import rts_smooth
-from vision.video import TWIST_RESPONSE_COLUMNS
 
 __all__ = ["FusedRun", "fuse", "outputs_table", "output_covariance", "plain_bank", "vision_inputs"]
 
