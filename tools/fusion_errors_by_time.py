@@ -49,9 +49,11 @@ def with_truth(vision: pd.DataFrame, truth: pd.DataFrame, inputs) -> pd.DataFram
     if "yaw" in inputs:
         v["yaw_deg"] = np.interp(t, truth["t_s"], truth["yaw_deg"])
         v["yaw_per_twist_m"] = 0.0
+        v["yaw_per_twist_here_m"] = v["yaw_per_twist_ahead_m"] = 0.0   # the twist response too
     if "curvature" in inputs:
         v["curvature_1_m"] = np.interp(t, truth["t_s"], truth["curvature_1_m"])
         v["curvature_sigma_1_m"] = 1e-5
+        v["curvature_per_twist_here"] = v["curvature_per_twist_ahead"] = 0.0
     return v
 
 
