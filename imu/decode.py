@@ -141,7 +141,9 @@ def physical(data: np.ndarray, sig: Any) -> np.ndarray:
                 out[i] = float(int(ival[i]) * sig.conversion.scale + sig.conversion.offset)
             return out
     conv = sig.conversion
-    return value * float(conv.scale) + float(conv.offset)
+    # Python floats, as cantools computes: inf * 0 is NaN and an overflow is inf, silently
+    with np.errstate(invalid="ignore", over="ignore"):
+        return value * float(conv.scale) + float(conv.offset)
 
 
 #: Below this magnitude raw * scale + offset is exact in float64 for integer scale and offset
@@ -252,7 +254,9 @@ def physical_scalar(payload: bytes, sig: Any) -> float:
             return float(ival * sig.conversion.scale + sig.conversion.offset)
         value = float(ival)
     conv = sig.conversion
-    return value * float(conv.scale) + float(conv.offset)
+    # Python floats, as cantools computes: inf * 0 is NaN and an overflow is inf, silently
+    with np.errstate(invalid="ignore", over="ignore"):
+        return value * float(conv.scale) + float(conv.offset)
 
 
 def decode_frame(payload: bytes, src: SourcePlan, range_check: bool) -> tuple[bool, list, list, list, list]:

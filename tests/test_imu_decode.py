@@ -44,6 +44,7 @@ def layouts(draw):
     return msg, sig, payloads
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")   # NaN/inf payloads decode silently, as in cantools
 @settings(max_examples=400, deadline=None)
 @given(layouts())
 def test_numpy_and_scalar_decode_equal_cantools(case):
@@ -190,3 +191,20 @@ def test_integers_beyond_2_53_are_rounded_once_as_cantools():
     assert want == 2**53 + 1 - 125
     data = np.frombuffer(payload, dtype=np.uint8).reshape(1, 8)
     assert physical(data, sig)[0] == float(want) == physical_scalar(payload, sig) == 9007199254740868.0
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_float_signal_nan_and_overflow_decode_silently_as_cantools():
+    """Float signals carry whatever the sender put there: a signalling NaN becomes NaN and a
+    value the scale pushes past float64 becomes inf, as cantools' Python floats give them,
+    without a RuntimeWarning per frame (NumPy raises the invalid/overflow flags for both)."""
+    for length, payload, scale in ((32, b"\x7f\x80\x00\x01", 0.5),                       # float32 sNaN
+                                   (64, b"\x7f\xf0\x00\x00\x00\x00\x00\x01", 2.0),       # float64 sNaN
+                                   (64, b"\x7f\xef\xff\xff\xff\xff\xff\xff", 2.0)):      # max * 2 = inf
+        sig = Signal("S", 7, length, "big_endian", False,
+                     conversion=BaseConversion.factory(scale=scale, offset=0, choices=None, is_float=True))
+        msg = Message(0x123, "M", 8, [sig], strict=True)
+        data = np.frombuffer(payload.ljust(8, b"\0"), np.uint8)[None, :]
+        ours = float(physical(data, sig)[0])
+        ref = msg.decode(payload.ljust(8, b"\0"), decode_choices=False)["S"]
+        assert (math.isnan(ours) and math.isnan(ref)) or ours == ref, (ours, ref)
