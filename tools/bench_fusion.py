@@ -110,7 +110,8 @@ def road_in_view(drive: Path, run_dir: Path) -> dict:
     (rad/m), next to what the estimator says they are (median of its ``roll_lookahead_m``,
     ``pitch_per_twist_m``, ``yaw_per_twist_m``): metres per rad/m; roll's sign is flipped (the
     roll ahead is ``-tau L`` off). Also the RMSE of each error before and after removing the
-    model's prediction per frame."""
+    model's prediction per frame, and for yaw after the twist response instead (what the filter
+    uses, :func:`_response_effect`)."""
     from fusion.metrics import interp_truth
 
     v = pd.read_csv(run_dir / "vision.csv")
@@ -130,9 +131,29 @@ def road_in_view(drive: Path, run_dir: Path) -> dict:
         slope = float(np.linalg.lstsq(A, e[m], rcond=None)[0][1]) * sign
         gain = v[col].to_numpy()
         left = e - sign * np.nan_to_num(gain) * tau
+        after_response = math.nan
+        if angle == "yaw":
+            after_response = math.degrees(math.sqrt(np.mean((e - _response_effect(v, tau)[0])[m] ** 2)))
         out[angle] = (slope, float(np.nanmedian(gain)), math.degrees(math.sqrt(np.mean(e[m] ** 2))),
-                      math.degrees(math.sqrt(np.mean(left[m] ** 2))))
+                      math.degrees(math.sqrt(np.mean(left[m] ** 2))), after_response)
     return out
+
+
+def _response_effect(v: pd.DataFrame, tau_here: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The yaw (rad) and lane-curvature (1/m) errors the vision's twist response predicts, as the
+    filter forms them (:meth:`fusion.ekf.AttitudeEKF.update_vision`) but with the true twist at
+    the vehicle ``tau_here`` (rad/m) for its bank rate over speed: the twist here and, at the
+    cross-sections, the vision's measured twist (the twist here where it measured none); the
+    uniform-twist yaw (``yaw_per_twist_m``, no curvature) where the frame has no response."""
+    g = {c: v[c].to_numpy() for c in ("yaw_per_twist_here_m", "yaw_per_twist_ahead_m", "curvature_per_twist_here",
+                                      "curvature_per_twist_ahead", "pitch_per_twist_here_m", "pitch_per_twist_ahead_m")}
+    has = np.all([np.isfinite(x) for x in g.values()], axis=0)
+    measured = np.radians(v["road_twist_deg_per_m"].to_numpy())
+    ahead = np.where(np.isfinite(measured), measured, tau_here)
+    yaw = np.where(has, g["yaw_per_twist_here_m"] * tau_here + g["yaw_per_twist_ahead_m"] * ahead,
+                   np.nan_to_num(v["yaw_per_twist_m"].to_numpy()) * tau_here)
+    kappa = np.where(has, g["curvature_per_twist_here"] * tau_here + g["curvature_per_twist_ahead"] * ahead, 0.0)
+    return np.nan_to_num(yaw), np.nan_to_num(kappa)
 
 
 def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
@@ -158,19 +179,23 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     tau = np.radians((interp_truth(truth, t + dt)["bank_deg"] - interp_truth(truth, t - dt)["bank_deg"]).to_numpy()
                      / (2 * dt)) / tr["speed_m_s"].to_numpy()
     out = {"steady_share": float(steady.mean())}
+    yaw_effect, kappa_effect = _response_effect(v, tau)
     for angle, col, sign in (("roll", "roll_lookahead_m", -1.0), ("pitch", "pitch_per_twist_m", 1.0),
                              ("yaw", "yaw_per_twist_m", 1.0)):
-        e = v[f"{angle}_deg"].to_numpy() - tr[f"{angle}_deg"].to_numpy()
-        e = e - sign * np.degrees(np.nan_to_num(v[col].to_numpy()) * tau)
+        # the road-in-view effect as the filter models it: the lookahead for roll, the uniform
+        # twist for pitch, the twist response for yaw
+        effect = yaw_effect if angle == "yaw" else sign * np.nan_to_num(v[col].to_numpy()) * tau
+        e = v[f"{angle}_deg"].to_numpy() - tr[f"{angle}_deg"].to_numpy() - np.degrees(effect)
         sig = v[f"{angle}_sigma_deg"].to_numpy()
-        used = np.degrees(noise.vision_sigma_rad(np.radians(sig), np.nan_to_num(v[col].to_numpy()) * tau))
+        used = np.degrees(noise.vision_sigma_rad(np.radians(sig), effect))
         ok = np.isfinite(e) & np.isfinite(sig)      # the last frames have no truth 10 ms later
         out[angle] = _steady_and_runoffs(e, sig, used, ok, steady)
     # The lane fit's other outputs the filter reads: the curvature (its own sigma, floored as the
     # filter floors it) and the lateral offset at the contact point (no sigma reported).
-    e = v["curvature_1_m"].to_numpy() - tr["curvature_1_m"].to_numpy()
+    e = v["curvature_1_m"].to_numpy() - tr["curvature_1_m"].to_numpy() - kappa_effect
     sig = v["curvature_sigma_1_m"].to_numpy()
-    used = noise.curvature_sigma_1_m(v["curvature_1_m"].to_numpy(), sig)
+    used = np.hypot(noise.curvature_sigma_1_m(v["curvature_1_m"].to_numpy(), sig),
+                    noise.vision_road_model_error * kappa_effect)
     out["curvature"] = _steady_and_runoffs(e, sig, used, np.isfinite(e) & np.isfinite(sig), steady)
     e = v["lateral_offset_m"].to_numpy() - tr["lateral_offset_m"].to_numpy()
     out["lateral"] = _steady_and_runoffs(e, None, None, np.isfinite(e), steady)
@@ -310,14 +335,17 @@ def main(argv=None) -> int:
     for name, _, _, nees_f, nees_s, loss_max, recover in rows:
         print(f"{name:<26} {100 * nees_f:21.1f}% {100 * nees_s:9.1f}% {loss_max:21.2f} deg {recover:8.2f} s")
     print()
-    print("Road in view: vision error per rad/m of road twist (regression on truth) vs the estimator's model [m];")
-    print("RMSE of the vision error before and after subtracting the model per frame [deg]")
-    print(f"{'drive':<26} {'angle':<6} {'measured':>9} {'model':>9} {'RMSE':>7} {'after':>7}")
+    print("Road in view: vision error per rad/m of road twist (regression on truth) vs the estimator's uniform-twist")
+    print("model [m]; RMSE of the vision error before and after subtracting the model per frame, and for yaw after")
+    print("the twist response instead (true twist here, the vision's twist ahead: what the filter uses) [deg]")
+    print(f"{'drive':<26} {'angle':<6} {'measured':>9} {'model':>9} {'RMSE':>7} {'after':>7} {'response':>9}")
     for name, view in view_rows:
-        for angle, (slope, model, before, after) in view.items():
-            print(f"{name:<26} {angle:<6} {slope:9.2f} {model:9.2f} {before:7.3f} {after:7.3f}")
+        for angle, (slope, model, before, after, response) in view.items():
+            cell = f"{response:9.3f}" if math.isfinite(response) else ""
+            print(f"{name:<26} {angle:<6} {slope:9.2f} {model:9.2f} {before:7.3f} {after:7.3f} {cell}")
     print()
-    print("The vision against its own sigma (after the road-in-view model): RMS error and median sigma [deg],")
+    print("The vision against its own sigma (after the road-in-view model the filter uses: roll's lookahead, pitch's")
+    print("uniform twist, yaw's and curvature's twist response, true twist here): RMS error and median sigma [deg],")
     print("RMS of error / sigma as the filter widens it (floor, road-in-view model error); steady road (no bank")
     print("change within 1.5 s) | near runoffs")
     print(f"{'drive':<26} {'angle':<6} {'steady':>7} {'RMS':>7} {'sigma':>7} {'z RMS':>6} {'runoffs RMS':>12} {'sigma':>7} {'z RMS':>6}")
