@@ -312,7 +312,7 @@ class FusionStream:
             ok = ekf.update_roll_ahead(m, turned)
             self.counts["roll_ahead_used" if ok else "roll_ahead_rejected"] += first
             if math.isfinite(m.twist_rad_m):
-                tw_ok = ekf.update_road_twist(m.twist_rad_m, m.twist_sigma_rad_m)
+                tw_ok = ekf.update_road_twist(m.twist_rad_m, m.twist_sigma_rad_m, m.lookahead_m)
                 self.counts["twist_used" if tw_ok else "twist_rejected"] += first
             self._roll_rejected_in_row = 0 if ok else self._roll_rejected_in_row + 1
             if self._roll_rejected_in_row >= self.options.reacquire_after_rejections:
@@ -342,7 +342,8 @@ class FusionStream:
             if first:
                 bisect.insort_right(self._pending, RollAhead(t + dt_ahead, float(angles[0]), float(m.sigmas_rad[0]),
                                                              dt_ahead, self._roll_prop, m.road_twist_rad_m,
-                                                             m.road_twist_sigma_rad_m), key=_time_of)
+                                                             m.road_twist_sigma_rad_m, m.roll_lookahead_m),
+                                    key=_time_of)
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
             # First frame: take yaw, bank and grade from it so that the filter starts consistent.
