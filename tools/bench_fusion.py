@@ -139,6 +139,20 @@ def road_in_view(drive: Path, run_dir: Path) -> dict:
     return out
 
 
+def _road_turn(truth: pd.DataFrame, tr: pd.DataFrame, lookahead_m: np.ndarray):
+    """The vision roll's and twist's parts from the road turning over the lookahead (the truth's
+    bank there and curvature at the vehicle, :func:`fusion.ekf.road_ahead_as_seen`): roll (rad,
+    add to the roll relative to the road there), twist (rad/m), and the factor ``cos(phi)`` on
+    the road's own twist."""
+    from fusion.ekf import road_ahead_as_seen
+
+    L = np.nan_to_num(lookahead_m)
+    bank_ahead = np.radians(np.interp(tr["station_m"].to_numpy() + L, truth["station_m"], truth["bank_deg"]))
+    kappa = tr["curvature_1_m"].to_numpy()
+    seen, twist = road_ahead_as_seen(bank_ahead, kappa, L)
+    return bank_ahead - seen, twist, np.cos(np.arcsin(np.clip(kappa * L, -0.999, 0.999)))
+
+
 def _response_effect(v: pd.DataFrame, tau_here: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The yaw (rad) and lane-curvature (1/m) errors the vision's twist response predicts, as the
     filter forms them (:meth:`fusion.ekf.AttitudeEKF.update_vision`) but with the true twist at
@@ -180,11 +194,14 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
                      / (2 * dt)) / tr["speed_m_s"].to_numpy()
     out = {"steady_share": float(steady.mean())}
     yaw_effect, kappa_effect = _response_effect(v, tau)
+    turn_roll, turn_twist, cos_phi = _road_turn(truth, tr, v["roll_lookahead_m"].to_numpy())
     for angle, col, sign in (("roll", "roll_lookahead_m", -1.0), ("pitch", "pitch_per_twist_m", 1.0),
                              ("yaw", "yaw_per_twist_m", 1.0)):
-        # the road-in-view effect as the filter models it: the lookahead for roll, the uniform
-        # twist for pitch, the twist response for yaw
+        # the road-in-view effect as the filter models it: the lookahead for roll (the road's
+        # turn over it included), the uniform twist for pitch, the twist response for yaw
         effect = yaw_effect if angle == "yaw" else sign * np.nan_to_num(v[col].to_numpy()) * tau
+        if angle == "roll":
+            effect = effect + turn_roll
         e = v[f"{angle}_deg"].to_numpy() - tr[f"{angle}_deg"].to_numpy() - np.degrees(effect)
         sig = v[f"{angle}_sigma_deg"].to_numpy()
         used = np.degrees(noise.vision_sigma_rad(np.radians(sig), effect))
@@ -199,12 +216,13 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     out["curvature"] = _steady_and_runoffs(e, sig, used, np.isfinite(e) & np.isfinite(sig), steady)
     e = v["lateral_offset_m"].to_numpy() - tr["lateral_offset_m"].to_numpy()
     out["lateral"] = _steady_and_runoffs(e, None, None, np.isfinite(e), steady)
-    # The road twist (three lines) against the truth's d bank / ds at the lookahead, the sigma
-    # floored as the filter floors it; and the share of frames that measured it.
+    # The road twist (three lines) against the truth's d bank / ds at the lookahead as the
+    # cross-sections see it (the road's turn included), the sigma floored as the filter floors
+    # it; and the share of frames that measured it.
     got = v["road_twist_deg_per_m"].to_numpy()
     at = tr["station_m"].to_numpy() + v["roll_lookahead_m"].to_numpy()
     true = (np.interp(at + 1.0, truth["station_m"], truth["bank_deg"])
-            - np.interp(at - 1.0, truth["station_m"], truth["bank_deg"])) / 2.0
+            - np.interp(at - 1.0, truth["station_m"], truth["bank_deg"])) / 2.0 * cos_phi + np.degrees(turn_twist)
     e = got - true
     sig = v["road_twist_sigma_deg_per_m"].to_numpy()
     used = np.degrees(noise.twist_sigma_rad_m(np.radians(got), np.radians(sig)))
