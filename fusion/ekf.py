@@ -274,7 +274,8 @@ def road_ahead_as_seen(bank_rad, curvature_1_m, distance_m):
     the vision's roll there is ``roll_w - bank + r`` with ``r = -atan S``, about ``bank (1 -
     cos phi)``, and its twist (``d/dx`` of the bank it sees) ``tau cos phi - dr/dx`` with
     ``dr/dx = kappa tan(phi) sin b cos b / (D^2 (1 + S^2))``, ``D = cos^2 b + sin^2 b cos phi``,
-    about ``bank kappa^2 x``. Returns ``(bank - r, -dr/dx)``, rad and rad/m (scalars or arrays).
+    about ``bank kappa^2 x``. Returns ``(bank - r, -dr/dx, phi)``, rad, rad/m and rad (scalars
+    or arrays).
 
     On the simulator's 7 deg curve of 200 m radius (the benchmark's right-hand drive) the vision
     roll on steady road was off by +0.017 deg on average and its twist by -3.0e-3 deg/m (about
@@ -287,17 +288,24 @@ def road_ahead_as_seen(bank_rad, curvature_1_m, distance_m):
     radius at 15 m, 0.5 deg of effect), where the markings' own radii begin to differ
     (``tests/test_fusion_filter.py::test_road_ahead_as_seen_matches_the_simulated_road``).
     """
-    b = np.asarray(bank_rad, dtype=float)
-    k = np.asarray(curvature_1_m, dtype=float)
-    phi = np.arcsin(np.clip(k * distance_m, -0.999, 0.999))    # no cross-section beyond the radius
-    cphi, sb, cb = np.cos(phi), np.sin(b), np.cos(b)
+    if np.ndim(bank_rad) or np.ndim(curvature_1_m) or np.ndim(distance_m):
+        return _road_turn_v(bank_rad, curvature_1_m, distance_m)
+    return _road_turn(float(bank_rad), float(curvature_1_m), float(distance_m))
+
+
+def _road_turn(b: float, k: float, d: float) -> tuple[float, float, float]:
+    """:func:`road_ahead_as_seen` for scalars (under 1 us; the filter calls it twice a frame).
+    ``phi`` is clipped short of a quarter turn: no cross-section meets the curve beyond its
+    radius."""
+    phi = math.asin(max(-0.999, min(0.999, k * d)))
+    cphi, sb, cb = math.cos(phi), math.sin(b), math.cos(b)
     D = cb * cb + sb * sb * cphi
     S = (cphi - 1.0) * sb * cb / D
-    r = -np.arctan(S)
-    drdx = k * np.tan(phi) * sb * cb / (D * D * (1.0 + S * S))
-    if b.ndim == 0 and k.ndim == 0 and np.ndim(distance_m) == 0:
-        return float(b - r), float(-drdx)
-    return b - r, -drdx
+    drdx = k * math.tan(phi) * sb * cb / (D * D * (1.0 + S * S))
+    return b + math.atan(S), -drdx, phi
+
+
+_road_turn_v = np.vectorize(_road_turn, otypes=[float, float, float])
 
 
 @dataclass(frozen=True)
@@ -779,9 +787,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
         v = float(self.x[S.SPEED])
         if not (v > 1.0 and math.isfinite(twist_rad_m)):
             return False
-        kappa = float(self.x[S.CURVATURE])
-        _, turned = road_ahead_as_seen(float(self.x[S.BANK]), kappa, lookahead_m)
-        tau = (twist_rad_m - turned) / math.cos(math.asin(max(-0.999, min(0.999, kappa * lookahead_m))))
+        _, turned, phi = _road_turn(float(self.x[S.BANK]), float(self.x[S.CURVATURE]), lookahead_m)
+        tau = (twist_rad_m - turned) / math.cos(phi)
         sig = v * float(self.noise.twist_sigma_rad_m(twist_rad_m, sigma_rad_m))
         return self.gated_update_state(S.BANK_RATE, v * tau, sig * sig)
 
@@ -794,9 +801,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
         if not lookahead_m > 0.0:
             return 0.0
         bank, kappa = float(x[S.BANK]), float(x[S.CURVATURE])
-        seen, _ = road_ahead_as_seen(bank, kappa, lookahead_m)
+        seen, _, phi = _road_turn(bank, kappa, lookahead_m)
         # derivatives of r ~ bank (1 - cos phi), phi = asin(kappa L): to first order in the bank
-        phi = math.asin(max(-0.999, min(0.999, kappa * lookahead_m)))
         H_roll[S.BANK] += 1.0 - math.cos(phi)
         H_roll[S.CURVATURE] += bank * lookahead_m * math.tan(phi)
         return bank - seen

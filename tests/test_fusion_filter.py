@@ -412,13 +412,13 @@ def test_twist_changing_across_the_view_is_modelled(drive, forward):
     # the roll and twist the cameras' cross-sections see L ahead, the road's turn included
     # (``road_ahead_as_seen``, checked against the simulator's surface below)
     kappa = np.interp(t, tt, tr["curvature_1_m"])
-    seen, turn_twist = ekf.road_ahead_as_seen(bank_of_s(station + L), kappa, L)
+    seen, turn_twist, phi = ekf.road_ahead_as_seen(bank_of_s(station + L), kappa, L)
     v["roll_deg"] -= np.degrees(seen - bank_of_s(station))
     v["yaw_deg"] += np.degrees(g["yaw_per_twist_here_m"] * here + g["yaw_per_twist_ahead_m"] * ahead)
     v["curvature_1_m"] += g["curvature_per_twist_here"] * here + g["curvature_per_twist_ahead"] * ahead
     assert np.degrees(np.abs(v["yaw_deg"] - drive.vision["yaw_deg"])).max() > 1.0   # runoffs worth testing
     v = v.assign(roll_lookahead_m=L, pitch_per_twist_m=0.0, yaw_per_twist_m=(-9.2 + 2.6) / 2.0,
-                 road_twist_deg_per_m=np.degrees(ahead * np.cos(np.arcsin(kappa * L)) + turn_twist),
+                 road_twist_deg_per_m=np.degrees(ahead * np.cos(phi) + turn_twist),
                  road_twist_sigma_deg_per_m=0.002)
     modelled = fuse(drive.imu, v.assign(**g), lever_arm_m=drive.lever_arm_m, options=OPTIONS).fused
     uniform = fuse(drive.imu, v, lever_arm_m=drive.lever_arm_m, options=OPTIONS).fused
@@ -459,7 +459,7 @@ def test_road_ahead_as_seen_matches_the_simulated_road():
         road = Road([Segment(60.0), Segment(70.0, kappa, bank_deg), Segment(1000.0, kappa, bank_deg)])
         s, d, bank = 400.0, -1.75, np.radians(bank_deg)
         for L in (10.0, 15.0):
-            seen, twist = ekf.road_ahead_as_seen(bank, kappa, L)
+            seen, twist, _ = ekf.road_ahead_as_seen(bank, kappa, L)
             want = np.degrees(bank - seen)          # roll_w - bank + r with roll_w = bank
             got = _roll_to_cross_section_deg(road, s, d, L)
             assert abs(got - want) <= tol * abs(want) + 1e-4, (kappa, bank_deg, L, got, want)

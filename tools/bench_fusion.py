@@ -149,8 +149,8 @@ def _road_turn(truth: pd.DataFrame, tr: pd.DataFrame, lookahead_m: np.ndarray):
     L = np.nan_to_num(lookahead_m)
     bank_ahead = np.radians(np.interp(tr["station_m"].to_numpy() + L, truth["station_m"], truth["bank_deg"]))
     kappa = tr["curvature_1_m"].to_numpy()
-    seen, twist = road_ahead_as_seen(bank_ahead, kappa, L)
-    return bank_ahead - seen, twist, np.cos(np.arcsin(np.clip(kappa * L, -0.999, 0.999)))
+    seen, twist, phi = road_ahead_as_seen(bank_ahead, kappa, L)
+    return bank_ahead - seen, twist, np.cos(phi)
 
 
 def _response_effect(v: pd.DataFrame, tau_here: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
