@@ -128,7 +128,8 @@ from scipy.stats import chi2
 from vision.frames import R_from_rpy_scalar, rpy_from_R_scalar, so3_exp_scalar, wrap_angle
 
 __all__ = ["S", "DIM_X", "NoiseModel", "ImuStep", "RollAhead", "AttitudeEKF", "GRAVITY_M_S2",
-           "relative_attitude", "relative_outputs", "road_ahead_as_seen", "vision_hx", "vision_jacobian"]
+           "relative_attitude", "relative_outputs", "road_ahead_as_seen", "twist_response_effect", "vision_hx",
+           "vision_jacobian"]
 
 GRAVITY_M_S2 = 9.80665
 
@@ -306,6 +307,17 @@ def _road_turn(b: float, k: float, d: float) -> tuple[float, float, float]:
 
 
 _road_turn_v = np.vectorize(_road_turn, otypes=[float, float, float])
+
+
+def twist_response_effect(response, tau_here_rad_m, tau_ahead_rad_m):
+    """The yaw (rad) and lane-curvature (1/m) errors that the estimator's twist response
+    predicts (:attr:`VisionMeasurement.twist_response`, six gains: curvature, pitch, yaw per
+    rad/m of twist here and at the cross-sections), for the twist ``tau_here_rad_m`` at the
+    vehicle and the vision's own measured twist ahead (NaN where it measured none: the twist
+    here, a uniform twist). Scalars, or arrays with the gains along the first axis."""
+    ahead = np.where(np.isfinite(tau_ahead_rad_m), tau_ahead_rad_m, tau_here_rad_m)
+    return (response[4] * tau_here_rad_m + response[5] * ahead,
+            response[0] * tau_here_rad_m + response[1] * ahead)
 
 
 @dataclass(frozen=True)
@@ -747,10 +759,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
                     # with the twist here 0.517 and 0.583, the IMU alone's 0.588).
                     # Pitch keeps the uniform model: with the response it was worse on all
                     # three benchmark drives (0.051 / 0.031 / 0.021 -> 0.065 / 0.045 / 0.045 deg).
-                    tau_here = self.x[S.BANK_RATE] / v
-                    tau_ahead = m.road_twist_rad_m if math.isfinite(m.road_twist_rad_m) else tau_here
-                    effect[2] = g[4] * tau_here + g[5] * tau_ahead
-                    curvature_effect = g[0] * tau_here + g[1] * tau_ahead
+                    yaw_effect, curvature_effect = twist_response_effect(g, self.x[S.BANK_RATE] / v, m.road_twist_rad_m)
+                    effect[2], curvature_effect = float(yaw_effect), float(curvature_effect)
                 hx = hx + effect
         sig = n.vision_sigma_rad(own_sig, effect)
         z = np.asarray(m.angles_rad, dtype=float)
@@ -794,10 +804,9 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     @staticmethod
     def _bank_turned_ahead(H_roll: np.ndarray, x: np.ndarray, lookahead_m: float) -> float:
-        """The vision roll's part from the road turning over ``lookahead_m`` (roll ahead
-        ``roll_w - bank cos(kappa L)``, :func:`road_ahead_as_seen`): returned as the term to add
-        to the predicted roll, and its derivatives added to the roll's Jacobian row ``H_roll``
-        (in place)."""
+        """The vision roll's part from the road turning over ``lookahead_m`` (roll ahead ``roll_w
+        - bank + r``, :func:`road_ahead_as_seen`): returns ``r`` to add to the predicted roll,
+        and adds its derivatives to the roll's Jacobian row ``H_roll`` (in place)."""
         if not lookahead_m > 0.0:
             return 0.0
         bank, kappa = float(x[S.BANK]), float(x[S.CURVATURE])

@@ -155,19 +155,17 @@ def _road_turn(truth: pd.DataFrame, tr: pd.DataFrame, lookahead_m: np.ndarray):
 
 def _response_effect(v: pd.DataFrame, tau_here: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The yaw (rad) and lane-curvature (1/m) errors the vision's twist response predicts, as the
-    filter forms them (:meth:`fusion.ekf.AttitudeEKF.update_vision`) but with the true twist at
-    the vehicle ``tau_here`` (rad/m) for its bank rate over speed: the twist here and, at the
-    cross-sections, the vision's measured twist (the twist here where it measured none); the
-    uniform-twist yaw (``yaw_per_twist_m``, no curvature) where the frame has no response."""
-    g = {c: v[c].to_numpy() for c in ("yaw_per_twist_here_m", "yaw_per_twist_ahead_m", "curvature_per_twist_here",
-                                      "curvature_per_twist_ahead", "pitch_per_twist_here_m", "pitch_per_twist_ahead_m")}
-    has = np.all([np.isfinite(x) for x in g.values()], axis=0)
-    measured = np.radians(v["road_twist_deg_per_m"].to_numpy())
-    ahead = np.where(np.isfinite(measured), measured, tau_here)
-    yaw = np.where(has, g["yaw_per_twist_here_m"] * tau_here + g["yaw_per_twist_ahead_m"] * ahead,
-                   np.nan_to_num(v["yaw_per_twist_m"].to_numpy()) * tau_here)
-    kappa = np.where(has, g["curvature_per_twist_here"] * tau_here + g["curvature_per_twist_ahead"] * ahead, 0.0)
-    return np.nan_to_num(yaw), np.nan_to_num(kappa)
+    filter forms them (:func:`fusion.ekf.twist_response_effect`) but with the true twist at the
+    vehicle ``tau_here`` (rad/m) for its bank rate over speed; the uniform-twist yaw
+    (``yaw_per_twist_m``, no curvature) where the frame has no response."""
+    from fusion.ekf import twist_response_effect
+    from vision.video import TWIST_RESPONSE_COLUMNS
+
+    g = np.stack([v[c].to_numpy() for c in TWIST_RESPONSE_COLUMNS])
+    has = np.all(np.isfinite(g), axis=0)
+    yaw, kappa = twist_response_effect(g, tau_here, np.radians(v["road_twist_deg_per_m"].to_numpy()))
+    yaw = np.where(has, yaw, np.nan_to_num(v["yaw_per_twist_m"].to_numpy()) * tau_here)
+    return np.nan_to_num(yaw), np.where(has, np.nan_to_num(kappa), 0.0)
 
 
 def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
