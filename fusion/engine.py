@@ -28,7 +28,8 @@ import numpy as np
 
 from vision.frames import wrap_angle
 
-from .ekf import AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, vision_hx, vision_jacobian
+from .ekf import (AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, road_ahead_as_seen, vision_hx,
+                  vision_jacobian)
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 
@@ -318,7 +319,9 @@ class FusionStream:
             if self._roll_rejected_in_row >= self.options.reacquire_after_rejections:
                 # the bank drifted away from what the vision sees: take it from the vision again
                 n = self.options.noise
-                bank = ekf.x[S.BANK] + wrap_angle(vision_hx(ekf.x)[0] - (m.roll_rad + turned))
+                seen, _, _ = road_ahead_as_seen(ekf.x[S.BANK], ekf.x[S.CURVATURE], m.lookahead_m)
+                predicted = vision_hx(ekf.x)[0] + ekf.x[S.BANK] - seen     # as update_roll_ahead has it
+                bank = ekf.x[S.BANK] + wrap_angle(predicted - (m.roll_rad + turned))
                 self._reset(((S.BANK, bank, n.init_bank_rad), (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s)))
                 self.counts["roll_ahead_reacquired"] += first
                 ekf.update_roll_ahead(m, turned)
