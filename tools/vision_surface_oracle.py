@@ -17,7 +17,11 @@ three times over the frames, each time projecting the image rays onto a differen
   ``b(x) - b(0)`` to its cubic over 5-40 m (the few parameters an estimator could carry).
 
 It prints the RMS error of roll, pitch, yaw (deg) and lane curvature (1e-3 1/m) against the
-truth, on steady road and near runoffs (a bank change within 1.5 s). The detection of the
+truth, on steady road and near runoffs (a bank change within 1.5 s). How good must an estimate of
+the profiles be: ``--profile-scale K`` scales the bank change (a relative error), ``--known-to
+M`` keeps it only to ``M`` m ahead and holds its last twist beyond (what a map of the
+cross-sections' twists from the frames before could know), ``--fit-range M`` limits the lane
+fit (:attr:`vision.options.EstimatorOptions.fit_range_m`) for the true-surface modes. The detection of the
 markers (in a planar bird's-eye view) is the same in all three; only the geometry differs.
 The ``exact`` rows are the ceiling of a single-frame estimator that knew the surface; the
 ``profiles`` rows show that a surface of two profiles along the road reaches it, and the
@@ -70,7 +74,8 @@ class TrueSurface:
     """The road around one frame's vehicle, in the estimator's frame (``o``'s axes, origin at
     the camera), from the simulator."""
 
-    def __init__(self, road, s_m: float, d_m: float, R_o_from_v: np.ndarray, camera_v: np.ndarray) -> None:
+    def __init__(self, road, s_m: float, d_m: float, R_o_from_v: np.ndarray, camera_v: np.ndarray,
+                 profile_scale: float = 1.0, known_to_m: float | None = None) -> None:
         self.road = road
         self.s, self.d = s_m, d_m
         self.Rw = road.frame(np.array(s_m), np.array(d_m))                # R_w_from_o
@@ -81,7 +86,11 @@ class TrueSurface:
         u = np.arange(-5.0, 90.0, 0.5)
         C = (road.surface(s_m + u, np.zeros_like(u)) - self.P0) @ self.Rw
         self.cx, self.cy, self.cz = C[:, 0] - self.cam_o[0], C[:, 1] - self.cam_o[1], C[:, 2]
-        self.db = road.bank_rad(s_m + u) - road.bank_rad(np.array(s_m))
+        self.db = profile_scale * (road.bank_rad(s_m + u) - road.bank_rad(np.array(s_m)))
+        if known_to_m is not None:              # known to there, its last twist beyond
+            k = int(np.searchsorted(u, known_to_m))
+            twist = (self.db[k] - self.db[k - 4]) / (u[k] - u[k - 4])
+            self.db = np.where(u <= known_to_m, self.db, self.db[k] + twist * (u - u[k]))
         fit = (self.cx > 5.0) & (self.cx < 40.0)
         # the same surface with each profile reduced to a polynomial fitted to it over the view
         x = self.cx[fit]
@@ -113,7 +122,8 @@ class TrueSurface:
         return t * r[:, 0], t * r[:, 1]
 
 
-def run(name: str, mode: str, stride: int) -> pd.DataFrame:
+def run(name: str, mode: str, stride: int, fit_range_m: float | None = None, profile_scale: float = 1.0,
+        known_to_m: float | None = None) -> pd.DataFrame:
     import vision.estimator as est_mod
     from bench_fusion import cached_full_drive
     from drivesim.drive import build_road
@@ -127,11 +137,15 @@ def run(name: str, mode: str, stride: int) -> pd.DataFrame:
     cfg = load_config(drive / "config.toml")
     truth = pd.read_csv(drive / "truth_frames.csv")
     road = build_road(load_scenario(drive / "scenario.toml"))
-    opts = EstimatorOptions() if mode == "assumed" else replace(EstimatorOptions(), vertical_curvature=False)
+    opts = EstimatorOptions()
+    if mode != "assumed":
+        opts = replace(opts, vertical_curvature=False)
+        if fit_range_m is not None:
+            opts = replace(opts, fit_range_m=fit_range_m)
     planar = est_mod.ground_from_rays
     here: dict = {}
 
-    def on_true_road(rays, R, H, zeta=0.0, x0=0.0):
+    def on_true_road(rays, R, H, zeta=0.0, x0=0.0):  # the signature of vision.ipm.ground_from_rays
         shape = np.asarray(rays).shape[:-1]
         x, y = getattr(here["surface"], mode)(rays, R, H)
         return x.reshape(shape), y.reshape(shape)
@@ -149,7 +163,7 @@ def run(name: str, mode: str, stride: int) -> pd.DataFrame:
             if mode != "assumed":
                 R_ov = R_from_rpy(*np.radians([tr.roll_deg, tr.pitch_deg, tr.yaw_deg]))
                 here["surface"] = TrueSurface(road, float(tr.station_m), float(tr.lateral_offset_m), R_ov,
-                                              cfg.mount.position_v)
+                                              cfg.mount.position_v, profile_scale, known_to_m)
             e = est.estimate(img)       # every frame: the estimator seeds the next from it
             if i % stride or not e.valid:
                 continue
@@ -175,13 +189,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("names", nargs="*", default=DRIVES)
     ap.add_argument("--stride", type=int, default=1, help="score every N-th frame (all are estimated)")
+    ap.add_argument("--modes", nargs="+", default=MODES, choices=MODES)
+    ap.add_argument("--fit-range", type=float, help="lane fit range of the true-surface modes, m")
+    ap.add_argument("--profile-scale", type=float, default=1.0, help="scale the true bank change ahead")
+    ap.add_argument("--known-to", type=float, help="the bank change known to this far ahead, m; its last twist beyond")
     args = ap.parse_args(argv)
     print("RMS error against truth: roll, pitch, yaw [deg], lane curvature [1e-3 1/m]; steady road | near runoffs")
     print(f"{'drive':<26} {'surface':<11} {'roll':>6} {'pitch':>6} {'yaw':>6} {'kappa':>6} | "
           f"{'roll':>6} {'pitch':>6} {'yaw':>6} {'kappa':>6}   frames")
     for name in args.names:
-        for mode in MODES:
-            df = run(name, mode, args.stride)
+        for mode in args.modes:
+            df = run(name, mode, args.stride, args.fit_range, args.profile_scale, args.known_to)
             near = near_runoffs(df["t_s"].to_numpy(), df["bank_deg"].to_numpy())
             cells = []
             for part in (~near, near):
