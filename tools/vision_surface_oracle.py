@@ -25,7 +25,7 @@ fit (:attr:`vision.options.EstimatorOptions.fit_range_m`) for the true-surface m
 markers (in a planar bird's-eye view) is the same in all three; only the geometry differs.
 The ``exact`` rows are the ceiling of a single-frame estimator that knew the surface; the
 ``profiles`` rows show that a surface of two profiles along the road reaches it, and the
-``polynomials`` rows that five numbers per frame do (README, "Fusion").
+``polynomials`` rows that five numbers per frame do (`docs/fusion-notes.md`, 2026-11-25).
 """
 
 from __future__ import annotations
