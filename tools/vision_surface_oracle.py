@@ -122,27 +122,23 @@ class TrueSurface:
         return t * r[:, 0], t * r[:, 1]
 
 
-def run(name: str, mode: str, stride: int, fit_range_m: float | None = None, profile_scale: float = 1.0,
-        known_to_m: float | None = None) -> pd.DataFrame:
+def estimates(images, truth: pd.DataFrame, road, camera, mount, markings, mode: str, *,
+              fit_range_m: float | None = None, profile_scale: float = 1.0,
+              known_to_m: float | None = None) -> pd.DataFrame:
+    """The estimator over ``images`` (in order: it seeds each frame from the last) with the rays
+    met on the road ``mode`` (:data:`MODES`), and its errors against ``truth`` (one row of
+    :func:`drivesim.drive.truth_frame` per image): ``t_s, bank_deg, roll, pitch, yaw`` (deg),
+    ``curvature`` (1e-3 1/m), valid frames only."""
     import vision.estimator as est_mod
-    from bench_fusion import cached_full_drive
-    from drivesim.drive import build_road
-    from drivesim.scenario import load_scenario
-    from fusion.config import load_config
     from vision.frames import R_from_rpy
     from vision.options import EstimatorOptions
-    from vision.video import FrameSource, _frames_from
 
-    drive = cached_full_drive(name)
-    cfg = load_config(drive / "config.toml")
-    truth = pd.read_csv(drive / "truth_frames.csv")
-    road = build_road(load_scenario(drive / "scenario.toml"))
     opts = EstimatorOptions()
     if mode != "assumed":
         opts = replace(opts, vertical_curvature=False)
         if fit_range_m is not None:
             opts = replace(opts, fit_range_m=fit_range_m)
-    planar = est_mod.ground_from_rays
+    assumed = est_mod.ground_from_rays
     here: dict = {}
 
     def on_true_road(rays, R, H, zeta=0.0, x0=0.0):  # the signature of vision.ipm.ground_from_rays
@@ -154,18 +150,14 @@ def run(name: str, mode: str, stride: int, fit_range_m: float | None = None, pro
     try:
         if mode != "assumed":
             est_mod.ground_from_rays = on_true_road
-        est = est_mod.Estimator(cfg.camera, cfg.mount, cfg.road, opts)
-        for i, img in _frames_from(FrameSource(next(p for p in drive.iterdir() if p.name.startswith("video"))), 0,
-                                   luma=True):
-            if i >= len(truth):
-                break
-            tr = truth.iloc[i]
+        est = est_mod.Estimator(camera, mount, markings, opts)
+        for (_, tr), img in zip(truth.iterrows(), images):
             if mode != "assumed":
                 R_ov = R_from_rpy(*np.radians([tr.roll_deg, tr.pitch_deg, tr.yaw_deg]))
                 here["surface"] = TrueSurface(road, float(tr.station_m), float(tr.lateral_offset_m), R_ov,
-                                              cfg.mount.position_v, profile_scale, known_to_m)
-            e = est.estimate(img)       # every frame: the estimator seeds the next from it
-            if i % stride or not e.valid:
+                                              mount.position_v, profile_scale, known_to_m)
+            e = est.estimate(img)
+            if not e.valid:
                 continue
             rows.append({"t_s": tr.t_s - truth.t_s.iloc[0], "bank_deg": tr.bank_deg,
                          "roll": math.degrees(e.roll_rad) - tr.roll_deg,
@@ -173,8 +165,28 @@ def run(name: str, mode: str, stride: int, fit_range_m: float | None = None, pro
                          "yaw": math.degrees(e.yaw_rad) - tr.yaw_deg,
                          "curvature": 1e3 * (e.curvature_1_m - tr.curvature_1_m)})
     finally:
-        est_mod.ground_from_rays = planar
+        est_mod.ground_from_rays = assumed
     return pd.DataFrame(rows)
+
+
+def run(name: str, mode: str, stride: int, **kw) -> pd.DataFrame:
+    """:func:`estimates` over a drive as ``tools/bench_fusion.py`` caches it, every ``stride``-th
+    frame scored (all estimated)."""
+    from bench_fusion import cached_full_drive
+    from drivesim.drive import build_road
+    from drivesim.scenario import load_scenario
+    from fusion.config import load_config
+    from vision.video import FrameSource, _frames_from
+
+    drive = cached_full_drive(name)
+    cfg = load_config(drive / "config.toml")
+    truth = pd.read_csv(drive / "truth_frames.csv")
+    road = build_road(load_scenario(drive / "scenario.toml"))
+    video = FrameSource(next(p for p in drive.iterdir() if p.name.startswith("video")))
+    images = (img for _, img in _frames_from(video, 0, luma=True))
+    df = estimates(images, truth, road, cfg.camera, cfg.mount, cfg.road, mode, **kw)
+    frame = np.rint(df["t_s"].to_numpy() * float(1.0 / np.median(np.diff(truth.t_s)))).astype(int)
+    return df[frame % stride == 0]
 
 
 def near_runoffs(t_s: np.ndarray, bank_deg: np.ndarray, window_s: float = 1.5) -> np.ndarray:
@@ -199,7 +211,8 @@ def main(argv=None) -> int:
           f"{'roll':>6} {'pitch':>6} {'yaw':>6} {'kappa':>6}   frames")
     for name in args.names:
         for mode in args.modes:
-            df = run(name, mode, args.stride, args.fit_range, args.profile_scale, args.known_to)
+            df = run(name, mode, args.stride, fit_range_m=args.fit_range, profile_scale=args.profile_scale,
+                     known_to_m=args.known_to)
             near = near_runoffs(df["t_s"].to_numpy(), df["bank_deg"].to_numpy())
             cells = []
             for part in (~near, near):
