@@ -63,6 +63,10 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
     assert "rmse_deg" in summary and "fused" in summary["rmse_deg"]
     assert set(summary["imu_calibration"]) == {"gyro_bias_deg_s", "gyro_bias_sigma_deg_s", "accel_bias_m_s2",
                                                "accel_bias_sigma_m_s2"}
+    # the CAN log's totals in the run table: every IMU sample is a row of fused.csv
+    counts = summary["counts"]
+    assert counts["IMU samples"] == len(fused) and counts["IMU sample rate [Hz]"] == 100.0
+    assert counts["CAN frames read"] >= counts["CAN frames decoded (IMU, speed)"] >= 2 * len(fused)
     assert (out / "calibration.toml").is_file()
     html = (out / "report" / "report.html").read_text()
     assert "data:image/png;base64" in html

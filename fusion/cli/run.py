@@ -181,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
         t0 = time.perf_counter()
         summary_out = write_report(ReportInputs(
             fused=fused.fused, vision=vision, imu_only=imu_only.fused, plain_bank=pb, truth=truth,
-            imu_truth=imu_truth, cov=fused.cov, counts={**fused.counts, "can": summary.as_dict().get("totals", {})},
+            imu_truth=imu_truth, cov=fused.cov, counts={**fused.counts, **_can_counts(summary.as_dict())},
             timings_s=timings, time_offset=time_offset, warnings=warnings, smoothed=smooth,
             title=f"vifusion run: {files.video.name}", camera_time_offset_s=offset_s), tmp / "report")
         timings["report"] = time.perf_counter() - t0
@@ -191,6 +191,15 @@ def run(args: argparse.Namespace) -> int:
     tmp.rename(out)
     _print_summary(out, files, frames, imu, timings, warnings, summary_out, time_offset, time.perf_counter() - t_start)
     return 0
+
+
+def _can_counts(can: dict) -> dict:
+    """The CAN log's totals as rows of the report's run table (the decoder's summary,
+    :meth:`imu.samples.Summary.as_dict`)."""
+    rate = can.get("sample_rate_hz")
+    return {"CAN frames read": can.get("frames_read"), "CAN frames decoded (IMU, speed)": can.get("frames_mapped"),
+            "CAN frames of other IDs": can.get("unmapped_frames"), "IMU samples": can.get("samples"),
+            "IMU sample rate [Hz]": round(rate, 1) if isinstance(rate, float) else rate}
 
 
 def _count_frames(video: Path) -> int:
