@@ -168,6 +168,16 @@ def _response_effect(v: pd.DataFrame, tau_here: np.ndarray) -> tuple[np.ndarray,
     return np.nan_to_num(yaw), np.where(has, np.nan_to_num(kappa), 0.0)
 
 
+def near_runoffs(t_s: np.ndarray, bank_deg: np.ndarray, window_s: float = 1.5) -> np.ndarray:
+    """Samples (evenly spaced) within ``window_s`` either way of a bank change (the truth's bank
+    rate over 0.01 deg/s): near a superelevation runoff; the rest is steady road. The vision's
+    look-ahead spans about 1.5 s."""
+    rate = np.abs(np.gradient(np.asarray(bank_deg, float), np.asarray(t_s, float)))
+    step = float(np.median(np.diff(t_s)))
+    return pd.Series(rate > 0.01).rolling(2 * int(round(window_s / step)) + 1, center=True,
+                                          min_periods=1).max().to_numpy() > 0.5
+
+
 def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     """The vision's errors against its own 1-sigma, on steady road (no bank change within 1.5 s
     either way: the look-ahead spans about that) and near runoffs: per angle and part, RMS error
@@ -181,11 +191,8 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     v = v[v["valid"] == 1]
     truth = pd.read_csv(drive / "truth.csv")
     tt = truth["t_s"].to_numpy()
-    rate = np.abs(np.gradient(truth["bank_deg"].to_numpy(), tt))
-    step = float(np.median(np.diff(tt)))
-    busy = pd.Series(rate > 0.01).rolling(2 * int(round(1.5 / step)) + 1, center=True, min_periods=1).max()
     t = v["t_s"].to_numpy()
-    steady = np.interp(t, tt, busy.to_numpy()) < 0.5
+    steady = np.interp(t, tt, near_runoffs(tt, truth["bank_deg"].to_numpy()).astype(float)) < 0.5
     tr = interp_truth(truth, t)
     dt = 0.01
     tau = np.radians((interp_truth(truth, t + dt)["bank_deg"] - interp_truth(truth, t - dt)["bank_deg"]).to_numpy()

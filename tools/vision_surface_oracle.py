@@ -4,8 +4,8 @@ Usage::
 
     .venv/bin/python tools/vision_surface_oracle.py [drive names ...] [--stride N]
 
-For each simulated drive (cached as ``tools/bench_fusion.py`` caches it) the estimator runs
-three times over the frames, each time projecting the image rays onto a different road:
+For each simulated drive (cached as ``tools/bench_fusion.py`` caches it) the estimator runs over
+the frames once per mode, each time projecting the image rays onto a different road:
 
 * ``assumed``: the estimator as it is, a plane with a vertical curvature (``vision.ipm``);
 * ``exact``: the simulator's own road surface (``drivesim.road``), met by each ray at the
@@ -17,12 +17,14 @@ three times over the frames, each time projecting the image rays onto a differen
   ``b(x) - b(0)`` to its cubic over 5-40 m (the few parameters an estimator could carry).
 
 It prints the RMS error of roll, pitch, yaw (deg) and lane curvature (1e-3 1/m) against the
-truth, on steady road and near runoffs (a bank change within 1.5 s). How good must an estimate of
+truth, on steady road and near runoffs (``bench_fusion.near_runoffs``: a bank change within
+1.5 s). How good must an estimate of
 the profiles be: ``--profile-scale K`` scales the bank change (a relative error), ``--known-to
 M`` keeps it only to ``M`` m ahead and holds its last twist beyond (what a map of the
 cross-sections' twists from the frames before could know), ``--fit-range M`` limits the lane
-fit (:attr:`vision.options.EstimatorOptions.fit_range_m`) for the true-surface modes. The detection of the
-markers (in a planar bird's-eye view) is the same in all three; only the geometry differs.
+fit (:attr:`vision.options.EstimatorOptions.fit_range_m`) for the true-surface modes. The
+detection of the markers (in a planar bird's-eye view) is the same in every mode; only the
+geometry differs.
 The ``exact`` rows are the ceiling of a single-frame estimator that knew the surface; the
 ``profiles`` rows show that a surface of two profiles along the road reaches it, and the
 ``polynomials`` rows that five numbers per frame do (`docs/fusion-notes.md`, 2026-11-25).
@@ -189,15 +191,9 @@ def run(name: str, mode: str, stride: int, **kw) -> pd.DataFrame:
     return df[frame % stride == 0]
 
 
-def near_runoffs(t_s: np.ndarray, bank_deg: np.ndarray, window_s: float = 1.5) -> np.ndarray:
-    rate = np.abs(np.gradient(bank_deg, t_s))
-    moving = t_s[rate > 0.05]
-    if moving.size == 0:
-        return np.zeros(t_s.size, bool)
-    return np.min(np.abs(t_s[:, None] - moving[None, :]), axis=1) <= window_s
-
-
 def main(argv=None) -> int:
+    from bench_fusion import near_runoffs
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("names", nargs="*", default=DRIVES)
     ap.add_argument("--stride", type=int, default=1, help="score every N-th frame (all are estimated)")
