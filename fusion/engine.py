@@ -111,6 +111,7 @@ class _ImuSample:
     gyro_dot: np.ndarray = None
     roll_prop: float = 0.0
     applied: tuple = ()   # measurements applied in the interval ending here (for replays)
+    state: tuple = ()     # the stream's own state after this sample (FusionStream._snapshot)
 
 
 class FusionStream:
@@ -246,6 +247,7 @@ class FusionStream:
             if prev is None or v.t_s >= s.t:
                 self._vision_update(v, id(v) in new)
         s.x_post, s.P_post, s.roll_prop = ekf.x.copy(), ekf.P.copy(), self._roll_prop
+        s.state = self._snapshot()
         if self.record:
             if prev is None:
                 self.start = (s.x_post, s.P_post)
@@ -408,6 +410,23 @@ class FusionStream:
             reset(st.x_prior, st.P_prior)
             st.F[[i for i, _, _ in states], :] = 0.0
 
+    def _snapshot(self) -> tuple:
+        """What besides the filter's x and P the next steps depend on: the re-acquisition
+        counters and flags, the last lane fit and vision time, the road's turn rate, the
+        scheduled bank-rate noise. A replay starts from the base sample's (a replay that kept the
+        newest, e.g. the wheel speed initialised, would gate the speed against a state of 0 m/s
+        and reject it sample after sample)."""
+        ekf = self.ekf
+        return (self._vision_initialized, self._lane_fit, self._last_vision_t, self._road_rate, self._rejected_in_row,
+                self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
+                ekf._bank_rate_scheduled, float(ekf._q_scheduled[S.BANK_RATE]))
+
+    def _restore(self, state: tuple) -> None:
+        ekf = self.ekf
+        (self._vision_initialized, self._lane_fit, self._last_vision_t, self._road_rate, self._rejected_in_row,
+         self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
+         ekf._bank_rate_scheduled, ekf._q_scheduled[S.BANK_RATE]) = state
+
     def _apply_late(self, item: VisionMeasurement) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it
         and re-propagate the stored samples after it."""
@@ -423,6 +442,7 @@ class FusionStream:
             raise ValueError("late vision result with record=True: feed inputs in time order")
         self.ekf.x, self.ekf.P = base.x_post.copy(), base.P_post.copy()
         self._roll_prop = base.roll_prop
+        self._restore(base.state)
         if not replay:  # exactly at the newest sample's time
             self._vision_update(item)
             base.applied = (*base.applied, item)
