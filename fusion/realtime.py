@@ -19,11 +19,15 @@ Example (a live bus; ``frames`` yields (capture time on the bus clock, image))::
 
 from __future__ import annotations
 
+import math
+from collections import deque
+
 import numpy as np
 
 from imu import StreamDecoder
 from vision.estimator import Estimator, VisionEstimate
 from vision.options import options_from_table
+from vision.twistmap import travel_between
 
 from .calibration import calibration_from_state
 from .config import DriveConfig
@@ -48,6 +52,8 @@ class LiveFusion:
                                 options_from_table(config.extra.get("vision"), source))
         self.stream = FusionStream(config.imu.position_m, self.has_pitch_rate, fusion_opts)
         self.samples = 0
+        self._speeds: deque = deque(maxlen=256)    # recent fresh wheel speeds: (t_s, m/s)
+        self._last_frame = (math.nan, math.nan)    # the last frame: (t_s, speed then)
 
     def push_can(self, msg, received_s: float | None = None) -> int:
         """One CAN message (python-can ``Message``); returns how many IMU samples it released."""
@@ -58,13 +64,27 @@ class LiveFusion:
             if not (np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
                 continue  # an incomplete sample: the filter waits for the next one
             self.stream.add_imu(s.t_s, gyro, accel, s.speed_m_s, s.fresh_speed)
+            if s.fresh_speed and math.isfinite(s.speed_m_s):
+                self._speeds.append((s.t_s, s.speed_m_s))
             n += 1
         self.samples += n
         return n
 
     def push_frame(self, t_s: float, image) -> VisionEstimate:
-        """A camera frame captured at ``t_s`` (bus clock, before the configured camera offset)."""
-        est = self.vision.estimate(image)
+        """A camera frame captured at ``t_s`` (bus clock, before the configured camera offset).
+        The estimator is told the distance travelled since the last frame from the wheel speed
+        (for the road's twist, :attr:`vision.options.EstimatorOptions.road_twist`), as
+        :func:`fusion.pipeline.frame_speeds` has it offline: the last fresh speed at or before
+        each frame, none older than half a second; none either when the frames are over a
+        second apart."""
+        t_cap = t_s + self.settings.camera_time_offset_s
+        t_v, v = next(((t, v) for t, v in reversed(self._speeds) if t <= t_cap), (math.nan, math.nan))
+        if not t_cap - t_v <= 0.5:
+            v = math.nan
+        t0, v0 = self._last_frame
+        travel = travel_between(v0, v, t_cap - t0)
+        self._last_frame = (t_cap, v)
+        est = self.vision.estimate(image, travel_m=travel)
         self.push_vision(t_s, est)
         return est
 

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from vision.camera import Camera, Mount, RoadMarkings
 from vision.estimator import Estimator, _R_o_from_cp, camera_xyz_from_vehicle, vehicle_from_camera_xyz
 from vision.frames import R_CS_FROM_CP, Rx, Ry, matrix_from_euler, roll_xyz_from_zyx
-from vision.ipm import Bev, BevGrid
+from vision.ipm import Bev, BevGrid, RoadTwist, ground_from_rays, pixels_from_rays
 from vision.lanes import Marker, _robust_fit
 from vision.options import EstimatorOptions
 from vision.vanishing import r3_from_vp, r3_from_yaw_pitch, vp_bounds, vp_from_r3, yaw_pitch_from_r3
@@ -150,3 +150,78 @@ def test_vehicle_from_camera_is_eq22():
     back, R = vehicle_from_camera_xyz(*cam, MOUNT.tilt_rad)
     assert np.array(back) == pytest.approx(rpy, abs=1e-12)
     assert matrix_from_euler("xyz", *cam) @ Ry(MOUNT.tilt_rad).T == pytest.approx(R, abs=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# The road turning about its centre line (vision.ipm.RoadTwist)
+
+
+def runoff_twist(axis=(1.75, 0.01, 1.0, 0.05, -0.01)):
+    """A runoff ahead: no twist for 5 m, then 0.2 deg/m (a 7 deg runoff over 35 m), about a
+    centre line 1.75 m to the left, slightly curved."""
+    u = np.arange(0.0, 60.5, 0.5)
+    b = np.radians(0.2) * np.clip(u - 5.0, 0.0, None)
+    return RoadTwist(u, b, np.array(axis))
+
+
+def twisted_height(tw: RoadTwist, x, y, x0):
+    """The surface of the RoadTwist docstring written out here, independently of vision.ipm:
+    ``h = (y - y_c(x)) tan b(x - x0) + y_c(x0) b'(0) (x - x0)``."""
+    a, b1, s, c2, c3 = tw.axis
+    yc = lambda X: a + b1 * X + s * (c2 * (X / 10) ** 2 + c3 * (X / 10) ** 3)  # noqa: E731
+    tau0 = (tw.bank_change_rad[1] - tw.bank_change_rad[0]) / (tw.u_m[1] - tw.u_m[0])
+    return (y - yc(x)) * np.tan(np.interp(x - x0, tw.u_m, tw.bank_change_rad)) + yc(x0) * tau0 * (x - x0)
+
+
+def test_rays_meet_the_twisted_road_where_it_is():
+    """Road points on the twisted surface (with a vertical curvature as well), seen from a
+    leaning, pitched camera: the rays through them come back onto them to 1 mm, 5-40 m ahead
+    and across the lanes (Newton from the plane's root; the surface there is up to 0.6 m above
+    the plane, so a plane would put them metres off)."""
+    tw = runoff_twist()
+    R = _R_o_from_cp(*camera_xyz_from_vehicle(*np.radians([15.0, 0.4, 1.0]), MOUNT.tilt_rad))
+    H, zeta, x0 = 1.2, 2e-4, 1.5
+    X, Y = np.meshgrid(np.linspace(5.0, 40.0, 15), np.linspace(-5.0, 8.0, 9))
+    Z = -H + 0.5 * zeta * (X - x0) ** 2 + twisted_height(tw, X, Y, x0)
+    assert np.abs(Z + H).max() > 0.5
+    rays = np.stack([X, Y, Z], axis=-1) @ R        # cp = R^T o, row-wise
+    x, y = ground_from_rays(rays, R, H, zeta, x0, tw)
+    assert x == pytest.approx(X, abs=1e-3) and y == pytest.approx(Y, abs=1e-3)
+    flat_x, _ = ground_from_rays(rays, R, H, zeta, x0)
+    assert np.abs(flat_x - X).max() > 1.0
+
+
+def test_the_twisted_road_near_the_vehicle_turns_about_the_vehicle():
+    """The tangent plane at the contact point is the road under the vehicle, whatever the axis:
+    with a uniform twist tau from the contact point on, h ~ tau u y to first order, so the road
+    rises by 0 under the vehicle (y = 0) and by tau u y beside it (to third order in tau u: the
+    axis 1.75 m off leaves 1.75 (tan(tau u) - tau u), 3e-9 m here)."""
+    tau = math.radians(0.2)
+    u = np.arange(0.0, 60.5, 0.5)
+    tw = RoadTwist(u, tau * u, np.array([1.75, 0.0, 0.0, 0.0, 0.0]))
+    x0, du = 2.0, 0.5
+    assert tw.height(x0 + du, 0.0, x0) == pytest.approx(0.0, abs=1e-8)
+    assert tw.height(x0 + du, 3.0, x0) == pytest.approx(tau * du * 3.0, rel=1e-3)
+    assert tw.bank_change(du)[0] == pytest.approx(tau * du, rel=1e-12)
+
+
+def test_the_twisted_birds_eye_view_samples_the_surface():
+    """The bird's-eye view onto the twisted surface (a per-pixel remap) takes every BEV pixel
+    from the image pixel of its road point: an image whose grey value is its own column shows,
+    at each BEV pixel, the column that the ray through that pixel (``rays_of_bev``) projects to,
+    to 0.05 px (bilinear interpolation of a linear ramp is exact up to float32)."""
+    tw = runoff_twist()
+    grid = BevGrid(3.0, 36.0, -6.0, 6.0, 0.25, 0.05)     # the lanes and a margin
+    R = _R_o_from_cp(*camera_xyz_from_vehicle(*np.radians([10.0, 0.3, 0.5]), MOUNT.tilt_rad))
+    H, zeta, x0 = 1.1, 1e-4, 1.5
+    bev = Bev(grid, CAMERA, R, H, (zeta, x0, tw))
+    ramp = np.tile(np.arange(CAMERA.width, dtype=np.float32), (CAMERA.height, 1))
+    img = bev.warp(ramp)
+    v, u = np.mgrid[0:grid.height:7, 0:grid.width:11]
+    px = pixels_from_rays(CAMERA, bev.rays_of_bev(u, v))
+    inside = (px[..., 0] > 1) & (px[..., 0] < CAMERA.width - 2) & (px[..., 1] > 1) & (px[..., 1] < CAMERA.height - 2)
+    assert inside.sum() > 100
+    assert img[v, u][inside] == pytest.approx(px[..., 0][inside], abs=0.05)
+    # and the rays of the BEV pixels meet the surface at the pixels' road points
+    x, y = ground_from_rays(bev.rays_of_bev(u, v), R, H, zeta, x0, tw)
+    assert x == pytest.approx(grid.x_of_row(v), abs=1e-3) and y == pytest.approx(grid.y_of_col(u), abs=1e-3)

@@ -143,7 +143,7 @@ def estimates(images, truth: pd.DataFrame, road, camera, mount, markings, mode: 
     assumed = est_mod.ground_from_rays
     here: dict = {}
 
-    def on_true_road(rays, R, H, zeta=0.0, x0=0.0):  # the signature of vision.ipm.ground_from_rays
+    def on_true_road(rays, R, H, zeta=0.0, x0=0.0, twist=None):  # the signature of vision.ipm.ground_from_rays
         shape = np.asarray(rays).shape[:-1]
         x, y = getattr(here["surface"], mode)(rays, R, H)
         return x.reshape(shape), y.reshape(shape)

@@ -47,6 +47,15 @@ For the fusion filter, beyond the angles: the road's twist at the cross-sections
 rolls' slope along the road, three lines: :func:`_road_twist`) and the outputs' first-order
 response to a twist at the vehicle and at the cross-sections (:meth:`Estimator._twist_response`),
 with which the filter models what a superelevation runoff in view does to yaw and curvature.
+
+The road's twist in the projection (given the distance travelled per frame, from the wheel
+speed): the cross-sections' twists of the frames so far, kept along the road
+(:class:`vision.twistmap.TwistMap`), give the bank change ahead; where it reaches
+:attr:`EstimatorOptions.road_twist_min_deg` the frame's bird's-eye view and its projection are
+onto the road turning about its centre line (:class:`vision.ipm.RoadTwist`), the lane fit
+reaching as far as the map does. Pitch, yaw and curvature are then the road's under the vehicle
+(no road-in-view terms left for the filter, their sigmas widened by the map's), the roll stays
+the one at the cross-sections. Measured through the fusion: ``README``, "Fusion".
 """
 
 from __future__ import annotations
@@ -64,9 +73,10 @@ from .errors import VisionError
 from .frames import (R_CS_FROM_CP, R_from_rpy, Ry, euler_from_matrix, matrix_from_euler, roll_xyz_from_zyx, rpy_from_R,
                      rpy_from_camera_xyz_scalar)
 from .edges import measure_in_image
-from .ipm import Bev, BevGrid, default_grid, ground_from_rays, undistortion_lookup
+from .ipm import Bev, BevGrid, RoadTwist, default_grid, ground_from_rays, undistortion_lookup
 from .lanemodel import LaneModel, fit_lane_model_points, lane_direction
 from .lanes import LaneOptions, Marker, detect_markers
+from .twistmap import TwistMap
 from .options import EstimatorOptions
 from .roll import (coefficients_eq8, coefficients_eq10, roll_bound_eq14, solve_numeric, solve_pade)
 from .vanishing import (intersect_lines, r3_from_vp, r3_from_yaw_pitch, vp_from_r3,
@@ -124,7 +134,19 @@ class VisionEstimate:
         How the curvature (1/m), pitch and yaw (rad) respond to the road's twist (rad/m) at the
         vehicle and at ``roll_lookahead_m``, in that order per output
         (:meth:`Estimator._twist_response`): the reported values are the road's plus
-        ``G_here tau_here + G_ahead tau_ahead``. NaN when not computed.
+        ``G_here tau_here + G_ahead tau_ahead``. NaN when not computed; zeros when the
+        projection had the road's twist (:mod:`vision.twistmap`), as then ``pitch_per_twist_m``
+        and ``yaw_per_twist_m``: no road-in-view terms are left.
+    road_twist_span_m : tuple of 2 float
+        Where the cross-sections measured ``road_twist_rad_m``, m ahead of the contact point
+        (three lines; empty otherwise): what :class:`vision.twistmap.TwistMap` records.
+    road_axis : tuple of 5 float
+        The centre line of three, in this frame's lane-model form (:class:`vision.ipm.RoadTwist`):
+        what the road turns about, and the next frame's start.
+    road_twist_used : float
+        In a frame projected onto the twisted road (:mod:`vision.twistmap`): the mapped bank
+        change from the contact point to ``roll_lookahead_m``, rad, which the roll (then the
+        road's there) was taken from the pose by; 0 for a frame projected onto the plane.
     lateral_offset_m : float
         Vehicle origin's offset from the midpoint between the outermost lines used, m, positive
         to the left (the road's centre line in the simulator's two- and three-line setups).
@@ -170,6 +192,9 @@ class VisionEstimate:
     road_twist_rad_m: float = math.nan
     road_twist_sigma_rad_m: float = math.nan
     twist_response: tuple[float, ...] = (math.nan,) * 6
+    road_twist_span_m: tuple[float, ...] = ()
+    road_axis: tuple[float, ...] = ()
+    road_twist_used: float = 0.0
     lateral_offset_m: float = math.nan
     line_spacing_m: float = math.nan
     line_offsets_m: tuple[float, ...] = ()
@@ -225,6 +250,16 @@ _ZETA_MAX = 5e-3
 _ZETA_LEVER_M = 20.0
 #: Refinement steps larger than this (rad, 0.1 deg) hold the vertical curvature where it is.
 _ZETA_POSE_STEP_RAD = math.radians(0.1)
+#: Floor of the cross-sections' twist as :class:`vision.twistmap.TwistMap` takes it: absolute
+#: (rad/m) plus relative. Against the simulator's truth the planar projection's twist is good to
+#: 0.002-0.004 deg/m on steady road and 15-25 % of the twist in runoffs (the fusion floors it the
+#: same way).
+_TWIST_SIGMA_FLOOR_RAD_M = math.radians(0.004)
+_TWIST_SIGMA_REL = 0.25
+#: The twist map's 1-sigma as the angles' and the curvature's sigmas take it: against the true
+#: twist its errors were 2.5-2.8 times its sigma in the first runoff of the 20 s drives (1.0 on the
+#: 60 s drive, 0.4-0.9 on the hold-out drive), where the map is youngest.
+_TWIST_MAP_SIGMA_SCALE = 3.0
 #: Model terms of the angles' 1-sigma beyond the lane model's covariance (rad): roll, pitch, yaw.
 _ANGLE_MODEL_SIGMA_RAD = (0.0, 0.0, 0.0)
 #: Model terms of the curvature's 1-sigma: a floor (1/m) and a part proportional to it.
@@ -352,6 +387,8 @@ class Estimator:
         self._last_call_valid = False
         self._R_cs_from_v = Ry(mount.tilt_rad).T
         self._height_memo: dict = {}
+        self.twist_map = TwistMap()
+        self._map_active = False
 
     # ---- public ----
 
@@ -359,11 +396,44 @@ class Estimator:
         self.last = None
         self._before_last = None
         self._last_call_valid = False
+        self.twist_map.reset()
+        self._map_active = False
 
-    def estimate(self, image, seed=None, *, keep_debug: bool = False) -> VisionEstimate:
+    def estimate(self, image, seed=None, *, travel_m: float | None = None, keep_debug: bool = False) -> VisionEstimate:
         """Estimate one frame. ``seed``: a previous :class:`VisionEstimate` or ``(roll, pitch,
         yaw)`` in rad; ``None`` uses the last valid estimate of this object (or no seed).
+        ``travel_m``: how far the vehicle moved along the road since the previous frame (from
+        the wheel speed), which carries the road's twist measured by the frames before
+        (:mod:`vision.twistmap`, :attr:`vision.options.EstimatorOptions.road_twist`); None:
+        no map (the road in view is taken as untwisted, the fusion models its twist).
         Never raises for bad pictures: they give ``valid=False`` with a ``reason``."""
+        if travel_m is None or not math.isfinite(travel_m) or not self.options.road_twist:
+            if self._map_active:
+                self.twist_map.reset()
+            self._map_active = False
+        else:
+            self._map_active = True
+            self.twist_map.advance(float(travel_m))
+        est = self._estimate(image, seed, keep_debug)
+        if self._map_active and est.valid and est.road_twist_span_m and math.isfinite(est.road_twist_rad_m):
+            sigma = max(est.road_twist_sigma_rad_m, _TWIST_SIGMA_FLOOR_RAD_M + _TWIST_SIGMA_REL * abs(est.road_twist_rad_m))
+            self.twist_map.update(*est.road_twist_span_m, est.road_twist_rad_m, sigma)
+        return est
+
+    def _twist_ahead(self, axis) -> RoadTwist | None:
+        """The road's twist from the map about ``axis`` when it is worth projecting onto: a bank
+        change of :attr:`EstimatorOptions.road_twist_min_deg` or more within the fit's reach."""
+        o = self.options
+        tw = self.twist_map.profile(axis)
+        if tw is None:
+            return None
+        us = np.linspace(0.0, o.road_twist_fit_range_m, 6)
+        b = tw.bank_change(us)
+        if float(np.max(np.abs(b))) < math.radians(o.road_twist_min_deg):
+            return None
+        return tw
+
+    def _estimate(self, image, seed, keep_debug: bool) -> VisionEstimate:
         own_seed = seed is None and self.last is not None and self.last.valid
         if own_seed:
             seed = self.last
@@ -371,7 +441,7 @@ class Estimator:
         if own_seed and self._before_last is not None and seed_rpy is not None:
             # The last two frames in a row were valid: start from their extrapolation (constant
             # rate). A better start only saves a second warp; the estimate does not depend on it.
-            prev = self._before_last.rpy_rad
+            prev = _seed_rpy(self._before_last)
             seed_rpy = tuple(2.0 * a - b for a, b in zip(seed_rpy, prev))
         gray, why = _gray(image)
         if gray is None:
@@ -402,15 +472,16 @@ class Estimator:
 
     # ---- BEV and markers ----
 
-    def bev_at(self, gray: np.ndarray, R_o_from_cp: np.ndarray, height_m: float, grid: BevGrid | None = None):
-        bev = Bev(grid or self.grid, self.camera, R_o_from_cp, height_m)
+    def bev_at(self, gray: np.ndarray, R_o_from_cp: np.ndarray, height_m: float, grid: BevGrid | None = None,
+               surface=None):
+        bev = Bev(grid or self.grid, self.camera, R_o_from_cp, height_m, surface)
         img = bev.warp(gray, self.lut)
         lo, hi = bev.valid_columns()
         return bev, img, lo, hi
 
     def markers_at(self, gray, R_o_from_cp, height_m, lane_options: LaneOptions | None = None,
-                   grid: BevGrid | None = None):
-        bev, img, lo, hi = self.bev_at(gray, R_o_from_cp, height_m, grid)
+                   grid: BevGrid | None = None, surface=None):
+        bev, img, lo, hi = self.bev_at(gray, R_o_from_cp, height_m, grid, surface)
         mk = detect_markers(img, lo, hi, bev.grid.dx_m, bev.grid.dy_m, min(self.road.marker_widths_m),
                             lane_options or self.lane_options)
         return bev, img, mk
@@ -505,13 +576,14 @@ class Estimator:
         pose = self._initial_pose(seed_rpy)
         zeta0 = self._zeta_prior(seed_est)
         curvature = seed_est.curvature_1_m if seed_est is not None and math.isfinite(seed_est.curvature_1_m) else 0.0
+        twist0 = seed_est.road_axis if seed_est is not None and seed_est.road_axis else None
         narrow = self._seeded_grid(seed_est, pose)
         if narrow is not None:
             # Only the part of the BEV around the seed's lines; the whole width if a line is lost.
-            result = self._run(gray, pose, keep_debug, narrow, zeta0, curvature)
+            result = self._run(gray, pose, keep_debug, narrow, zeta0, curvature, twist0)
             if result.valid and result.n_lines >= seed_est.n_lines:
                 return result
-        result = self._run(gray, pose, keep_debug, zeta0=zeta0, curvature_1_m=curvature)
+        result = self._run(gray, pose, keep_debug, zeta0=zeta0, curvature_1_m=curvature, twist0=twist0)
         if not result.valid and self.options.ipm_pose == "seed":
             # The seed (or the mount's pose) put lines outside the BEV: search for them.
             pose = self._coarse_pose(gray)
@@ -558,15 +630,19 @@ class Estimator:
         return replace(g, y_min_m=lo, y_max_m=hi)
 
     def _run(self, gray, pose, keep_debug, grid: BevGrid | None = None,
-             zeta0: tuple[float, float] = (0.0, math.inf), curvature_1_m: float = 0.0) -> VisionEstimate:
+             zeta0: tuple[float, float] = (0.0, math.inf), curvature_1_m: float = 0.0, twist0=None) -> VisionEstimate:
         """BEV at ``pose``, markers, solve; warp again at the new pose when it moved far."""
         o = self.options
         want_three = self.road.center_line and o.roll_equation in ("auto", "eq10")
         warps = 0
         result = VisionEstimate.invalid("no lane markers found", o.method)
+        # the road's twist the frames before measured, when a runoff is ahead: the view and the
+        # projection of this frame are then onto the twisted road
+        tw0 = self._twist_ahead(np.asarray(twist0, float)) if self._map_active and twist0 else None
         while warps < o.max_warps:
-            H, _ = self.height_of(*pose)
-            bev, img, markers = self.markers_at(gray, _R_o_from_cp(*pose), H, grid=grid)
+            H, x0 = self.surface_of(*pose)
+            surface = (zeta0[0] if math.isfinite(zeta0[1]) else 0.0, x0, tw0) if tw0 is not None else None
+            bev, img, markers = self.markers_at(gray, _R_o_from_cp(*pose), H, grid=grid, surface=surface)
             warps += 1
             image_edges = None
             if o.edge_domain == "image" and markers:
@@ -582,7 +658,7 @@ class Estimator:
             used_edges = [image_edges[i] for i in idx] if image_edges is not None else None
             if dbg is not None:
                 dbg.image_edges = used_edges
-            result = self._solve(bev, lines, pose, H, dbg, warps, used_edges, zeta0)
+            result = self._solve(bev, lines, pose, H, dbg, warps, used_edges, zeta0, twist0 if tw0 is not None else None)
             if not result.valid:
                 return result
             new = result.camera_xyz_rad
@@ -609,9 +685,11 @@ class Estimator:
         return None
 
     def _solve(self, bev: Bev, lines: list[Marker], pose0, H0: float, dbg, warps: int,
-               image_edges=None, zeta0: tuple[float, float] = (0.0, math.inf)) -> VisionEstimate:
-        """Roll, pitch, yaw (and the vertical curvature) from the lines found in one BEV.
-        ``zeta0``: prior ``(mean, sigma)`` of the vertical curvature, 1/m (:meth:`_zeta_prior`)."""
+               image_edges=None, zeta0: tuple[float, float] = (0.0, math.inf), twist0=None) -> VisionEstimate:
+        """Roll, pitch, yaw (and the vertical curvature, the road's twist) from the lines found in
+        one BEV. ``zeta0``: prior ``(mean, sigma)`` of the vertical curvature, 1/m
+        (:meth:`_zeta_prior`); ``twist0``: the centre line to start the road's twist about (the
+        previous frame's :attr:`VisionEstimate.road_axis`), or None."""
         o, cam = self.options, self.camera
         n_lines = len(lines)
         use_eq10 = n_lines == 3 and o.roll_equation in ("auto", "eq10")
@@ -653,6 +731,12 @@ class Estimator:
         zeta_prior, zeta_prior_sigma = zeta0
         zeta = float(np.clip(zeta_prior, -_ZETA_MAX, _ZETA_MAX)) if use_sag else 0.0
         sag = zeta if use_sag else None
+        # The road's twist about its centre line (three lines), from the frames before
+        # (:mod:`vision.twistmap`); the centre line it turns about, from the last lane model
+        # (the previous frame's to start with).
+        use_twist = self._map_active and twist0 is not None and n_lines == 3 and o.refine_iterations > 0
+        axis = np.array(twist0, float) if use_twist and twist0 else None
+        tw = None
         iterations = 0
         if o.refine_iterations == 0:
             # ---- the paper's single pass: roll in this BEV, vanishing point of image lines ----
@@ -680,11 +764,14 @@ class Estimator:
                 H, x0 = self.surface_of(phi, theta, psi)
                 R = _R_o_from_cp(phi, theta, psi)
                 sag = zeta if use_sag else None
+                tw = self.twist_map.profile(axis) if use_twist and axis is not None else None
                 model = self._model(edges, R, H, shape_deg, bev.grid, select=it == 0, zeta=sag, x0=x0,
-                                    zeta_prior=zeta0)
+                                    zeta_prior=zeta0, twist=tw)
                 shape_deg = model.c.size + 1       # the degree chosen in the first pass is kept
+                if use_twist:
+                    axis = _centre_axis(model)
                 dmodel = model if o.vp == "tangent" else self._model(edges, R, H, 1, bev.grid, zeta=sag, x0=x0,
-                                                                                  zeta_prior=zeta0)
+                                                                                  zeta_prior=zeta0, twist=tw)
                 if use_sag and model.dzeta != 0.0 and step > _ZETA_POSE_STEP_RAD:
                     # Far from the pose, a pitch error bends the projected lines in ways the
                     # polynomials do not follow (a 1/x term), which zeta would take up: where
@@ -712,8 +799,11 @@ class Estimator:
                 # The last pass moved the pose: describe the lanes in the final frame.
                 H, x0 = self.surface_of(phi, theta, psi)
                 sag = zeta if use_sag else None
+                tw = self.twist_map.profile(axis) if use_twist and axis is not None else None
                 model = self._model(edges, _R_o_from_cp(phi, theta, psi), H, shape_deg, bev.grid, select=False,
-                                    zeta=sag, x0=x0, zeta_prior=zeta0)
+                                    zeta=sag, x0=x0, zeta_prior=zeta0, twist=tw)
+                if use_twist:
+                    axis = _centre_axis(model)
             x_rows = self._cross_x(model)
             if x_rows is None:
                 return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
@@ -745,10 +835,41 @@ class Estimator:
         offsets = tuple(c + float(cam_off[1]) for c in all_centres)
         curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
         curvature_sigma = self._curvature_sigma(model, x_c, n_lines, curvature)
-        twist, twist_sigma = _road_twist(model, x_rows, roll_rows, use_eq10)
-        response = np.full((3, 2), math.nan)
-        if o.refine_iterations > 0 and model.linear is not None:
-            response = self._twist_response(model, H, x_c, zeta, float(np.mean(x_rows)), dir_rows, J_vehicle)
+        lookahead = float(np.mean(x_rows)) - x_c
+        span = (float(x_rows.min()) - x_c, float(x_rows.max()) - x_c)
+        twisted = tw is not None if o.refine_iterations > 0 else False
+        if twisted:
+            # The projection had the road's twist (the map's, from the frames before): pitch,
+            # yaw and curvature are the road's under the vehicle, no road-in-view terms are left
+            # for the fusion but the map's own uncertainty near the vehicle, which the uniform-
+            # twist gains carry into pitch and yaw. The roll stays the one relative to the road
+            # at the cross-sections, which the map does not touch (their own rolls are measured
+            # against the mapped surface there, whose tilt the pose takes up), and the twist
+            # there is the map's plus what the cross-sections still see.
+            residual, twist_sigma = _road_twist(model, x_rows, roll_rows, use_eq10)
+            mapped, _ = self.twist_map.mean_twist(*span)
+            twist = mapped + residual
+            response = np.zeros((3, 2))
+            _, near_sigma = self.twist_map.mean_twist(0.0, lookahead)
+            _, span_sigma = self.twist_map.mean_twist(*span)
+            # the map's uncertainty through the outputs' response to a twist here and ahead
+            k = _TWIST_MAP_SIGMA_SCALE
+            if model.linear is not None:
+                sens = np.abs(self._twist_response(model, H, x_c, zeta, float(np.mean(x_rows)), dir_rows, J_vehicle))
+                curvature_sigma = math.hypot(curvature_sigma, k * (sens[0, 0] * near_sigma + sens[0, 1] * span_sigma))
+                s_pitch = math.hypot(s_pitch, k * (sens[1, 0] * near_sigma + sens[1, 1] * span_sigma))
+                s_yaw = math.hypot(s_yaw, k * (sens[2, 0] * near_sigma + sens[2, 1] * span_sigma))
+            else:                     # the uniform twist's gains
+                s_pitch = math.hypot(s_pitch, k * abs(centres[0] + centres[1]) * near_sigma)
+                s_yaw = math.hypot(s_yaw, k * abs(centres[0] * centres[1] / H) * near_sigma)
+            bank_change_L = float(tw.bank_change(lookahead)[0])
+            roll = roll - bank_change_L
+        else:
+            bank_change_L = 0.0
+            twist, twist_sigma = _road_twist(model, x_rows, roll_rows, use_eq10)
+            response = np.full((3, 2), math.nan)
+            if o.refine_iterations > 0 and model.linear is not None:
+                response = self._twist_response(model, H, x_c, zeta, float(np.mean(x_rows)), dir_rows, J_vehicle)
         zeta_sigma = model.zeta_free_sigma if math.isfinite(model.zeta_free_sigma) else model.sigma_dzeta
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
@@ -774,10 +895,14 @@ class Estimator:
             roll, pitch, yaw, s_roll, s_pitch, s_yaw, valid,
             curvature_1_m=curvature, curvature_sigma_1_m=curvature_sigma,
             vertical_curvature_1_m=zeta, vertical_curvature_sigma_1_m=zeta_sigma,
-            roll_lookahead_m=float(np.mean(x_rows)) - x_c, lateral_offset_m=lateral,
-            pitch_per_twist_m=centres[0] + centres[1], yaw_per_twist_m=centres[0] * centres[1] / H,
+            roll_lookahead_m=lookahead, lateral_offset_m=lateral,
+            pitch_per_twist_m=0.0 if twisted else centres[0] + centres[1],
+            yaw_per_twist_m=0.0 if twisted else centres[0] * centres[1] / H,
             road_twist_rad_m=twist, road_twist_sigma_rad_m=twist_sigma,
             twist_response=tuple(map(float, response.ravel())),
+            road_twist_span_m=span if use_eq10 else (),
+            road_axis=tuple(map(float, _centre_axis(model))) if n_lines == 3 else (),
+            road_twist_used=bank_change_L,
             line_spacing_m=spacing, line_offsets_m=offsets,
             camera_xyz_rad=(float(phi), float(theta), float(psi)), vp_px=(float(vp[0]), float(vp[1])),
             n_lines=n_lines, roll_equation="eq10" if use_eq10 else "eq8", edge_rms_px=rms_px,
@@ -850,19 +975,23 @@ class Estimator:
         return np.arctan2(p, f_vx), coefficients_eq8(ratio)
 
     def _model(self, edges: list[_Edge], R, H, deg, grid: BevGrid, select: bool = True, zeta: float | None = None,
-               x0: float = 0.0, zeta_prior: tuple[float, float] = (0.0, math.inf)) -> LaneModel:
+               x0: float = 0.0, zeta_prior: tuple[float, float] = (0.0, math.inf),
+               twist: RoadTwist | None = None) -> LaneModel:
         """Lane model of the edges projected onto the road at pose ``R``, height ``H``; with
         ``zeta`` (not None), onto the surface of that vertical curvature, fitting its correction
-        with the prior ``zeta_prior = (mean, sigma)`` (1/m)."""
+        with the prior ``zeta_prior = (mean, sigma)`` (1/m); with ``twist``, onto the road turning
+        about its centre line (:mod:`vision.twistmap`)."""
         rays, bounds, steps = _stack_edges(edges)
         z = 0.0 if zeta is None else zeta
-        x, y = ground_from_rays(rays, R, H, z, x0)
+        x, y = ground_from_rays(rays, R, H, z, x0, twist)
         from_image = edges[0].from_image
         if from_image:
             # Metres of lateral position per pixel along each cut (the measurement's direction).
-            _, y2 = ground_from_rays(rays + steps, R, H, z, x0)
+            _, y2 = ground_from_rays(rays + steps, R, H, z, x0, twist)
             q_all = np.abs(y2 - y)
-        ok, counts = _in_range(x, bounds, 0.5, self.options.fit_range_m)   # NaN (above the horizon) is out
+        reach = self.options.fit_range_m if twist is None else min(self.options.fit_range_m,
+                                                                    self.options.road_twist_fit_range_m)
+        ok, counts = _in_range(x, bounds, 0.5, reach)   # NaN (above the horizon) is out
         if counts.min() < 3:
             raise VisionError("an edge lies above the horizon at this pose")
         # BEV rows far away re-sample image rows (f_y H / x^2 rows per metre against 1 / dx);
@@ -1191,11 +1320,25 @@ def _road_twist(model: LaneModel, xs, roll_rows, use_eq10: bool) -> tuple[float,
     return float(w @ delta), float(math.sqrt(max(float(row @ model.cov @ row), 0.0)))
 
 
+def _centre_axis(model: LaneModel) -> np.ndarray:
+    """The middle line of three as :class:`vision.ipm.RoadTwist` takes it: ``(a, b, s, c2, c3)``."""
+    a = float(np.mean(model.a[model.edge_line == 1]))
+    c = np.zeros(2)
+    c[:model.c.size] = model.c[:2]
+    return np.array([a, float(model.b[1]), float(model.line_scale[1]), c[0], c[1]])
+
+
 def _seed_rpy(seed):
     if seed is None:
         return None
     if isinstance(seed, VisionEstimate):
-        return seed.rpy_rad if seed.valid else None
+        if not seed.valid:
+            return None
+        if seed.road_twist_used:
+            # the pose the frame's projection had: relative to the road under the vehicle (its
+            # reported roll is the one at the cross-sections)
+            return seed.rpy_rad[0] + seed.road_twist_used, seed.rpy_rad[1], seed.rpy_rad[2]
+        return seed.rpy_rad
     try:
         r, p, y = (float(v) for v in seed)
     except (TypeError, ValueError):

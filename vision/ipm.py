@@ -33,7 +33,7 @@ import numpy as np
 from .camera import Camera
 from .errors import VisionError
 
-__all__ = ["BevGrid", "Bev", "ground_from_rays", "rays_from_pixels", "pixels_from_rays"]
+__all__ = ["BevGrid", "Bev", "RoadTwist", "ground_from_rays", "rays_from_pixels", "pixels_from_rays"]
 
 
 @dataclass(frozen=True)
@@ -109,7 +109,7 @@ def pixels_from_rays(camera: Camera, rays_cp) -> np.ndarray:
 
 
 def ground_from_rays(rays_cp, R_o_from_cp, height_m: float, vertical_curvature_1_m: float = 0.0,
-                     x0_m: float = 0.0):
+                     x0_m: float = 0.0, twist: "RoadTwist | None" = None):
     """Road points hit by rays, in the road-aligned frame at the camera's nadir.
 
     The road is the plane ``z = -H`` or, with a vertical curvature ``zeta``, the surface
@@ -131,6 +131,9 @@ def ground_from_rays(rays_cp, R_o_from_cp, height_m: float, vertical_curvature_1
         ``zeta``, 1/m (0: a plane).
     x0_m : float
         Where the surface touches the plane (the contact point), m ahead of the nadir.
+    twist : RoadTwist, optional
+        The road turning about its centre line ahead (a superelevation runoff): the surface
+        then rises by :meth:`RoadTwist.height` more (Newton from the untwisted root).
 
     Returns
     -------
@@ -140,9 +143,143 @@ def ground_from_rays(rays_cp, R_o_from_cp, height_m: float, vertical_curvature_1
     """
     rays = np.asarray(rays_cp, dtype=float)
     shape = rays.shape[:-1]
-    x, y = _ground_from_rays(np.ascontiguousarray(rays.reshape(-1, 3)), np.ascontiguousarray(R_o_from_cp, dtype=float),
-                             float(height_m), float(vertical_curvature_1_m), float(x0_m))
+    flat = np.ascontiguousarray(rays.reshape(-1, 3))
+    R = np.ascontiguousarray(R_o_from_cp, dtype=float)
+    if twist is None or not twist.active:
+        x, y = _ground_from_rays(flat, R, float(height_m), float(vertical_curvature_1_m), float(x0_m))
+    else:
+        x, y = _ground_from_rays_twisted(flat, R, float(height_m), float(vertical_curvature_1_m), float(x0_m),
+                                         np.ascontiguousarray(twist.u_m, np.float64),
+                                         np.ascontiguousarray(twist.bank_change_rad, np.float64),
+                                         np.ascontiguousarray(twist.axis, np.float64))
     return x.reshape(shape), y.reshape(shape)
+
+
+@dataclass(frozen=True)
+class RoadTwist:
+    """The road turning about its centre line ahead of the vehicle (a superelevation runoff).
+
+    The bank changes by ``b(u)`` at ``u = x - x0`` ahead of the contact point ``x0`` (rad,
+    ``b(0) = 0``; linear between the tabulated ``u_m``, constant twist beyond the last), about
+    the centre line ``y_c(x)``, so that, above the tangent plane at the contact point, the road
+    lies
+
+    .. math:: h(x, y) = (y - y_c(x)) \tan b(u) + y_c(x_0) b'(0) u
+
+    higher (plus the vertical curvature's ``zeta u^2 / 2``). The last term keeps the plane
+    tangent at the vehicle: the vehicle rides ``-y_c(x0)`` off the axis, where the twist
+    ``b'(0)`` makes a grade ``-y_c(x0) b'(0)``; near the vehicle ``h ~ b'(0) u y``, a twist about
+    the vehicle's own line, whatever the axis. Checked against the simulator's exact road
+    (``tools/vision_surface_oracle.py``: with the true bank change and centre-line height, the
+    vision's yaw in runoffs is 0.04-0.06 deg, against 0.6-0.9 deg on the untwisted surface).
+
+    ``axis``: the centre line as the lane model writes a line, ``(a, b, s, c2, c3)`` for
+    ``y_c = a + b x + s (c2 t^2 + c3 t^3)``, ``t = x / 10`` (:class:`vision.lanemodel.LaneModel`).
+    """
+
+    u_m: np.ndarray
+    bank_change_rad: np.ndarray
+    axis: np.ndarray
+
+    @property
+    def active(self) -> bool:
+        return bool(np.any(self.bank_change_rad != 0.0))
+
+    def bank_change(self, u):
+        """``b(u)``, rad, at ``u`` m ahead of the contact point."""
+        u = np.atleast_1d(np.asarray(u, float))
+        out = np.empty(u.size)
+        for i, v in enumerate(u.ravel()):
+            out[i] = _profile(self.u_m, self.bank_change_rad, float(v))[0]
+        return out.reshape(u.shape)
+
+    def height(self, x, y, x0_m: float):
+        """``h(x, y)`` above the tangent plane (without the vertical curvature), m."""
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        out = np.empty(x.size)
+        _twist_height_many(np.ascontiguousarray(x.ravel()), np.ascontiguousarray(y.ravel()), float(x0_m),
+                           self.u_m, self.bank_change_rad, self.axis, out)
+        return out.reshape(x.shape)
+
+
+@nb.njit(cache=True)
+def _profile(u_m, b, u):  # pragma: no cover (numba)
+    """``b(u)`` and ``b'(u)`` of the table (linear; the end segments' twist beyond the ends)."""
+    n = u_m.size
+    if u <= u_m[0]:
+        i = 0
+    elif u >= u_m[n - 1]:
+        i = n - 2
+    else:
+        i = np.searchsorted(u_m, u) - 1
+    db = (b[i + 1] - b[i]) / (u_m[i + 1] - u_m[i])
+    return b[i] + db * (u - u_m[i]), db
+
+
+@nb.njit(cache=True, inline="always")
+def _axis_y(axis, x):  # pragma: no cover (numba)
+    """Centre line ``y_c(x)`` and its slope (:class:`RoadTwist`)."""
+    t = x / 10.0
+    shape = axis[3] * t * t + axis[4] * t * t * t
+    dshape = (2.0 * axis[3] * t + 3.0 * axis[4] * t * t) / 10.0
+    return axis[0] + axis[1] * x + axis[2] * shape, axis[1] + axis[2] * dshape
+
+
+@nb.njit(cache=True)
+def _twist_h(x, y, x0, u_m, b_tab, axis, tau0):  # pragma: no cover (numba)
+    """``h``, ``dh/dx``, ``dh/dy`` of :class:`RoadTwist` at ``(x, y)``; ``tau0 = b'(0)``."""
+    u = x - x0
+    b, db = _profile(u_m, b_tab, u)
+    yc, dyc = _axis_y(axis, x)
+    yc0, _ = _axis_y(axis, x0)
+    tb = math.tan(b)
+    h = (y - yc) * tb + yc0 * tau0 * u
+    hx = -dyc * tb + (y - yc) * (1.0 + tb * tb) * db + yc0 * tau0
+    return h, hx, tb
+
+
+@nb.njit(cache=True)
+def _twist_height_many(x, y, x0, u_m, b_tab, axis, out):  # pragma: no cover (numba)
+    tau0 = _profile(u_m, b_tab, 0.0)[1]
+    for i in range(x.size):
+        out[i] = _twist_h(x[i], y[i], x0, u_m, b_tab, axis, tau0)[0]
+
+
+@nb.njit(cache=True)
+def _ground_from_rays_twisted(rays, R, H, zeta, x0, u_m, b_tab, axis):  # pragma: no cover (numba)
+    """:func:`ground_from_rays` onto the twisted surface ``z = -H + zeta u^2 / 2 + h(x, y)``:
+    Newton on ``f(t) = t r_z + H - zeta u^2 / 2 - h(t r_x, t r_y)`` from the untwisted root."""
+    x, y = _ground_from_rays(rays, R, H, zeta, x0)
+    tau0 = _profile(u_m, b_tab, 0.0)[1]
+    for i in range(rays.shape[0]):
+        if not math.isfinite(x[i]):
+            continue
+        a, b, c = rays[i, 0], rays[i, 1], rays[i, 2]
+        r0 = a * R[0, 0] + b * R[0, 1] + c * R[0, 2]
+        r1 = a * R[1, 0] + b * R[1, 1] + c * R[1, 2]
+        r2 = a * R[2, 0] + b * R[2, 1] + c * R[2, 2]
+        t = x[i] / r0 if abs(r0) > 1e-12 else -H / r2
+        ok = False
+        for _ in range(20):
+            px, py = t * r0, t * r1
+            u = px - x0
+            h, hx, hy = _twist_h(px, py, x0, u_m, b_tab, axis, tau0)
+            f = t * r2 + H - 0.5 * zeta * u * u - h
+            df = r2 - (zeta * u + hx) * r0 - hy * r1
+            if df >= -1e-12:
+                break            # grazing the surface: no stable hit
+            step = f / df
+            t -= step
+            if abs(step * r0) < 1e-7 and abs(step * r1) < 1e-7:
+                ok = t > 0.0
+                break
+        if ok:
+            x[i] = t * r0
+            y[i] = t * r1
+        else:
+            x[i] = np.nan
+            y[i] = np.nan
+    return x, y
 
 
 @nb.njit(cache=True)
@@ -185,10 +322,16 @@ class Bev:
         Assumed orientation of the pinhole frame relative to the road.
     height_m : float
         Assumed camera height above the road, m.
+    surface : tuple, optional
+        ``(zeta, x0, twist)``: the view of the road as :func:`ground_from_rays` with that vertical
+        curvature, contact point and :class:`RoadTwist` has it, instead of the plane (the warp
+        is then a per-pixel remap; ``image_from_bev`` stays the plane's homography, for what
+        only needs it roughly: the image's footprint, drawing).
     """
 
-    def __init__(self, grid: BevGrid, camera: Camera, R_o_from_cp, height_m: float) -> None:
+    def __init__(self, grid: BevGrid, camera: Camera, R_o_from_cp, height_m: float, surface=None) -> None:
         self.grid, self.camera = grid, camera
+        self.surface = surface
         self.R_o_from_cp = np.asarray(R_o_from_cp, dtype=float)
         self.height_m = float(height_m)
         # image (undistorted pixel) from BEV pixel: K R_cp_from_o M  (Damon et al. 2018, eq. (5)).
@@ -203,8 +346,19 @@ class Bev:
     def rays_of_bev(self, u, v) -> np.ndarray:
         """Rays in ``cp`` ``(..., 3)`` through BEV pixels."""
         u, v = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float))
+        if self.surface is not None:
+            return self._surface_points(u, v) @ self.R_o_from_cp
         p = np.stack([u, v, np.ones_like(u)], axis=-1) @ (self.R_o_from_cp.T @ self.grid.M_h(self.height_m)).T
         return p / p[..., 2:3]
+
+    def _surface_points(self, u, v) -> np.ndarray:
+        """The road points ``(X, Y, Z)`` (road frame at the nadir) of BEV pixels on the surface."""
+        zeta, x0, twist = self.surface
+        g = self.grid
+        X = g.x_of_row(v)
+        Y = g.y_of_col(u)
+        Z = -self.height_m + 0.5 * zeta * (X - x0) ** 2 + twist.height(X, Y, x0)
+        return np.stack([X, Y, Z], axis=-1)
 
     def bev_of_rays(self, rays_cp) -> tuple[np.ndarray, np.ndarray]:
         """BEV pixel coordinates of rays in ``cp`` (NaN above the horizon)."""
@@ -228,6 +382,21 @@ class Bev:
         into the warp; without distortion it is one ``cv2.warpPerspective``.
         """
         g = self.grid
+        if self.surface is not None:
+            zeta, x0, twist = self.surface
+            pad = 0 if undistort_maps is None else undistort_maps[2]
+            xu, yu = _surface_maps(g.height, g.width, g.x_max_m, g.y_max_m, g.dx_m, g.dy_m, self.height_m,
+                                   float(zeta), float(x0), np.ascontiguousarray(twist.u_m, np.float64),
+                                   np.ascontiguousarray(twist.bank_change_rad, np.float64),
+                                   np.ascontiguousarray(twist.axis, np.float64),
+                                   np.ascontiguousarray(self.R_o_from_cp), np.ascontiguousarray(self.camera.K, np.float64),
+                                   float(pad))
+            if undistort_maps is None:
+                return cv2.remap(image, xu, yu, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            lut_x, lut_y, _ = undistort_maps
+            xd = cv2.remap(lut_x, xu, yu, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1e6)
+            yd = cv2.remap(lut_y, xu, yu, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1e6)
+            return cv2.remap(image, xd, yd, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         if undistort_maps is None:
             return cv2.warpPerspective(image, self.image_from_bev, (g.width, g.height),
                                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
@@ -243,6 +412,45 @@ class Bev:
         xd = cv2.remap(lut_x, xu, yu, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1e6)
         yd = cv2.remap(lut_y, xu, yu, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1e6)
         return cv2.remap(image, xd, yd, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+@nb.njit(cache=True)
+def _surface_maps(n_rows, n_cols, x_max, y_max, dx, dy, H, zeta, x0, u_m, b_tab, axis, R, K, pad):  # pragma: no cover (numba)
+    """Undistorted image pixel (plus ``pad``) of every BEV pixel on the surface of
+    :class:`Bev` ``surface``: float32 maps for ``cv2.remap`` (-1e6 behind the camera)."""
+    mx = np.empty((n_rows, n_cols), np.float32)
+    my = np.empty((n_rows, n_cols), np.float32)
+    tau0 = _profile(u_m, b_tab, 0.0)[1]
+    yc0 = _axis_y(axis, x0)[0]
+    fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2] + pad, K[1, 1], K[1, 2] + pad
+    # along a row X and the bank are fixed and Z is linear in Y: cp = R^T (X, Y, Z) steps by a
+    # constant vector from column to column
+    for v in range(n_rows):
+        X = x_max - v * dx
+        u = X - x0
+        b = _profile(u_m, b_tab, u)[0]
+        tb = math.tan(b)
+        yc = _axis_y(axis, X)[0]
+        z0 = -H + 0.5 * zeta * u * u + yc0 * tau0 * u - yc * tb
+        Z = z0 + y_max * tb
+        q0 = R[0, 0] * X + R[1, 0] * y_max + R[2, 0] * Z
+        q1 = R[0, 1] * X + R[1, 1] * y_max + R[2, 1] * Z
+        q2 = R[0, 2] * X + R[1, 2] * y_max + R[2, 2] * Z
+        d0 = -dy * (R[1, 0] + R[2, 0] * tb)
+        d1 = -dy * (R[1, 1] + R[2, 1] * tb)
+        d2 = -dy * (R[1, 2] + R[2, 2] * tb)
+        for c in range(n_cols):
+            p2 = q2 + c * d2
+            if p2 > 1e-9:
+                inv = 1.0 / p2
+                p0 = (q0 + c * d0) * inv
+                p1 = (q1 + c * d1) * inv
+                mx[v, c] = fx * p0 + sk * p1 + cx
+                my[v, c] = fy * p1 + cy
+            else:
+                mx[v, c] = -1e6
+                my[v, c] = -1e6
+    return mx, my
 
 
 @nb.njit(cache=True)

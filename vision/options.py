@@ -109,6 +109,21 @@ class EstimatorOptions:
         ``zeta`` within this many sigma of 0 is set to 0 (the fit conditioned on it): on a flat
         road a free ``zeta`` only adds noise to pitch (its errors, correlated over the 40 m of
         road in view, do not average out from frame to frame). 0: always free.
+    road_twist : bool
+        With three lines and the distance travelled per frame (``Estimator.estimate(travel_m=)``;
+        ``vifusion run`` gives it from the wheel speed), project onto the road turning about its
+        centre line ahead as the frames before measured its twist (:mod:`vision.twistmap`,
+        :class:`vision.ipm.RoadTwist`): a plane (or a plane with a vertical curvature) reads a
+        superelevation runoff in view as degrees of roll and yaw
+        (``tools/vision_surface_oracle.py``).
+    road_twist_min_deg : float
+        The mapped bank change within ``road_twist_fit_range_m`` ahead from which a frame is
+        projected onto the twisted road (below it, the plane): on straight road the map's own
+        noise would add more than the twist it removes (0.3 deg over 20 m is 0.1 deg of yaw for a
+        vehicle 1.75 m off the axis).
+    road_twist_fit_range_m : float
+        The lane fit's reach in frames projected onto the twisted road: the map knows the road
+        as far as the cross-sections measured it, 20-22 m; beyond, its twist is extrapolated.
 
     Uncertainty
     -----------
@@ -146,6 +161,9 @@ class EstimatorOptions:
     vertical_curvature_sigma_1_m: float = 1e-3
     vertical_curvature_walk_1_m: float = 3e-5
     vertical_curvature_t_min: float = 3.0
+    road_twist: bool = True
+    road_twist_min_deg: float = 0.3
+    road_twist_fit_range_m: float = 22.0
     marker_width_tolerance_m: float = 0.003
     damon_step_deg: float = 0.1
     damon_range_deg: float = 6.0
@@ -175,6 +193,8 @@ class EstimatorOptions:
         _range("marker_width_tolerance_m", self.marker_width_tolerance_m, 0.0, 0.2)
         _range("vertical_curvature_sigma_1_m", self.vertical_curvature_sigma_1_m, 1e-6, 0.1)
         _range("vertical_curvature_t_min", self.vertical_curvature_t_min, 0.0, 100.0)
+        _range("road_twist_min_deg", self.road_twist_min_deg, 0.0, 90.0)
+        _range("road_twist_fit_range_m", self.road_twist_fit_range_m, 5.0, 500.0)
         if not self.vertical_curvature_walk_1_m > 0:
             raise VisionError("vision option vertical_curvature_walk_1_m must be > 0 (inf: no memory), "
                               f"got {self.vertical_curvature_walk_1_m}")

@@ -21,6 +21,7 @@ from .camera import Camera, Mount, RoadMarkings
 from .errors import VisionError
 from .estimator import Estimator, VisionEstimate
 from .options import EstimatorOptions
+from .twistmap import travel_between
 
 __all__ = ["FrameSource", "count_frames", "default_workers", "estimate_video", "vision_row", "VISION_COLUMNS"]
 
@@ -36,7 +37,7 @@ VISION_COLUMNS = (
     "roll_sigma_deg", "pitch_sigma_deg", "yaw_sigma_deg",
     "curvature_1_m", "curvature_sigma_1_m", "roll_lookahead_m",
     "pitch_per_twist_m", "yaw_per_twist_m", "road_twist_deg_per_m", "road_twist_sigma_deg_per_m",
-    *TWIST_RESPONSE_COLUMNS,
+    *TWIST_RESPONSE_COLUMNS, "road_twist_bank_change_deg",
     "lateral_offset_m", "line_spacing_m", "n_lines", "roll_equation", "vp_x_px", "vp_y_px", "edge_rms_px", "iterations", "warps", "ms", "reason",
 )
 
@@ -121,6 +122,7 @@ def vision_row(t_s: float, frame: int, est: VisionEstimate, ms: float = math.nan
         "pitch_per_twist_m": est.pitch_per_twist_m, "yaw_per_twist_m": est.yaw_per_twist_m,
         "road_twist_deg_per_m": deg(est.road_twist_rad_m), "road_twist_sigma_deg_per_m": deg(est.road_twist_sigma_rad_m),
         **dict(zip(TWIST_RESPONSE_COLUMNS, est.twist_response)),
+        "road_twist_bank_change_deg": deg(est.road_twist_used),
         "lateral_offset_m": est.lateral_offset_m, "line_spacing_m": est.line_spacing_m,
         "n_lines": est.n_lines, "roll_equation": est.roll_equation,
         "vp_x_px": est.vp_px[0], "vp_y_px": est.vp_px[1], "edge_rms_px": est.edge_rms_px,
@@ -148,7 +150,10 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         Video file or folder of frames.
     frames : DataFrame
         ``frame, t_s``: the frames to process and their capture times (``frames.csv``, or built
-        from ``[video] fps, start_s``). Frames of the video not listed are skipped.
+        from ``[video] fps, start_s``). Frames of the video not listed are skipped. With a column
+        ``speed_m_s`` (the vehicle's speed at each frame, from the wheel speed; NaN where
+        unknown) the estimator carries the road's twist from frame to frame by the distance
+        travelled (:attr:`vision.options.EstimatorOptions.road_twist`).
     camera, mount, road, options :
         As for :class:`vision.estimator.Estimator`.
     progress : bool
@@ -177,15 +182,18 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         raise VisionError(f"workers must be at least 1, got {workers}")
     src = FrameSource(video)
     want = {int(f): float(t) for f, t in zip(frames["frame"], frames["t_s"])}
+    speeds = ({int(f): float(v) for f, v in zip(frames["frame"], frames["speed_m_s"])}
+              if "speed_m_s" in frames else None)
     wanted = sorted(want)
     workers = 1 if debug_video is not None or len(wanted) < 2 * _MIN_PIECE else int(workers)
     bar = tqdm(total=len(wanted), desc="vision", unit="frame", disable=not progress)
     try:
         if workers == 1:
             rows, n_read = _estimate_piece(src, wanted, want, (camera, mount, road, options), debug_video,
-                                           debug_fps or _fps_of(frames), bar.update)
+                                           debug_fps or _fps_of(frames), bar.update, speeds)
         else:
-            rows, n_read = _estimate_parallel(src, wanted, want, (camera, mount, road, options), workers, bar.update)
+            rows, n_read = _estimate_parallel(src, wanted, want, (camera, mount, road, options), workers, bar.update,
+                                              speeds)
     finally:
         bar.close()
     table = pd.DataFrame(rows, columns=list(VISION_COLUMNS))
@@ -203,7 +211,8 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
 #: Smallest piece of a video given to one worker (frames): each piece costs a seek and a warm-up.
 _MIN_PIECE = 60
 #: Frames a worker's piece starts early (their rows dropped), for the estimator's frame-to-frame
-#: state (vertical-curvature prior, seed) to forget the cold start. Measured on the sample drive
+#: state (vertical-curvature prior, seed, the road's twist map: 30 frames at 10-30 m/s cover
+#: the 7-22 m ahead its cross-sections measure) to forget the cold start. Measured on the sample drive
 #: (360 frames, 2 workers): every row equals the single run's to 1e-6 deg except 7 frames after
 #: the cut (0.2-0.34 deg apart), where the result depends on the seed; roll RMSE against truth
 #: 0.615 vs 0.614 deg (``tests/test_vision_cli.py`` checks the RMSEs agree).
@@ -340,16 +349,17 @@ def _luma_frames(path: Path, start: int):
 
 
 def _estimate_piece(src: FrameSource, wanted: list[int], times: dict, setup, debug_video=None, debug_fps=30.0,
-                    tick=None) -> tuple[list[dict], int]:
+                    tick=None, speeds: dict | None = None) -> tuple[list[dict], int]:
     """Rows of the frames ``wanted`` (sorted, contiguous in the video), and how many frames of
-    the video were read (index of the last one + 1)."""
+    the video were read (index of the last one + 1). ``speeds``: m/s per frame, for the
+    distance travelled between frames (:func:`_travel_m`)."""
     import time
 
     from .debug import DebugWriter
 
     est = Estimator(*setup)
     writer = DebugWriter(debug_video, debug_fps, setup[0]) if debug_video is not None else None
-    rows, n_read = [], 0
+    rows, n_read, last_done = [], 0, None
     wanted_set, last = set(wanted), (wanted[-1] if wanted else -1)
     try:
         # the debug video draws on the colour frames; the estimator itself needs grey only
@@ -359,8 +369,10 @@ def _estimate_piece(src: FrameSource, wanted: list[int], times: dict, setup, deb
                 break
             if i not in wanted_set:
                 continue
+            travel = _travel_m(speeds, times, last_done, i)
+            last_done = i
             t0 = time.perf_counter()
-            e = est.estimate(img, keep_debug=writer is not None)
+            e = est.estimate(img, travel_m=travel, keep_debug=writer is not None)
             ms = (time.perf_counter() - t0) * 1e3
             rows.append(vision_row(times[i], i, e, ms))
             if writer is not None:
@@ -373,8 +385,16 @@ def _estimate_piece(src: FrameSource, wanted: list[int], times: dict, setup, deb
     return rows, n_read
 
 
+def _travel_m(speeds: dict | None, times: dict, before: int | None, frame: int) -> float | None:
+    """The distance travelled from frame ``before`` to ``frame``, or None where it is not known
+    (no speeds, no frame before, :func:`vision.twistmap.travel_between`)."""
+    if speeds is None or before is None:
+        return None
+    return travel_between(speeds.get(before, math.nan), speeds.get(frame, math.nan), times[frame] - times[before])
+
+
 def _piece_job(args):
-    src, piece, warm, times, setup = args
+    src, piece, warm, times, setup, speeds = args
     seen = [0]
 
     def tick(n: int) -> None:           # the warm-up frames do not count as done
@@ -382,7 +402,7 @@ def _piece_job(args):
         if seen[0] > len(warm):
             _tick_shared(n)
 
-    rows, n_read = _estimate_piece(src, warm + piece, times, setup, tick=tick)
+    rows, n_read = _estimate_piece(src, warm + piece, times, setup, tick=tick, speeds=speeds)
     return rows[len(warm):], n_read
 
 
@@ -420,7 +440,8 @@ def _numba_started() -> int:  # pragma: no cover (numba)
     return 1
 
 
-def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, workers: int, tick):
+def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, workers: int, tick,
+                       speeds: dict | None = None):
     """:func:`_estimate_piece` over one contiguous piece per worker in a process pool. Each
     piece but the first starts :data:`WARM_UP_FRAMES` early and drops those rows: the estimator
     carries the vertical curvature's prior from frame to frame (and seeds the search), so the
@@ -432,7 +453,8 @@ def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, 
     jobs = []
     for k, end in zip(starts, starts[1:] + [len(wanted)]):
         piece, warm = wanted[k:end], wanted[max(0, k - WARM_UP_FRAMES):k]
-        jobs.append((src, piece, warm, {i: times[i] for i in warm + piece}, setup))
+        jobs.append((src, piece, warm, {i: times[i] for i in warm + piece}, setup,
+                     None if speeds is None else {i: speeds.get(i, math.nan) for i in warm + piece}))
     ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
     if ctx.get_start_method() == "fork":
         # numba's first call in a process sets up its compiler target (0.3-0.4 s here, importing

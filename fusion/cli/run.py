@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     from ..drive import check_overlap, read_frame_times, read_truth
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
-    from ..pipeline import fuse, plain_bank
+    from ..pipeline import frame_speeds, fuse, plain_bank
     from ..report import ReportInputs, write_report
     from ..timing import estimate_camera_offset
 
@@ -138,6 +138,9 @@ def run(args: argparse.Namespace) -> int:
     frames = read_frame_times(files.frames, cfg.video, None if files.frames else _count_frames(files.video))
     check_overlap(frames["t_s"].to_numpy() + offset_s, imu["t_s"].to_numpy(),
                   str(files.frames or files.video), str(files.can_log))
+
+    # the wheel speed at each frame: the estimator carries the road's twist by the distance travelled
+    frames = frames.assign(speed_m_s=frame_speeds(imu, frames["t_s"].to_numpy() + offset_s))
 
     t0 = time.perf_counter()
     vision, vstats = estimate_video(files.video, frames, cfg.camera, cfg.mount, cfg.road, vision_opts,
