@@ -835,9 +835,13 @@ class Estimator:
         offsets = tuple(c + float(cam_off[1]) for c in all_centres)
         curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
         curvature_sigma = self._curvature_sigma(model, x_c, n_lines, curvature)
-        lookahead = float(np.mean(x_rows)) - x_c
+        x_mean = float(np.mean(x_rows))
+        lookahead = x_mean - x_c
         span = (float(x_rows.min()) - x_c, float(x_rows.max()) - x_c)
         twisted = tw is not None if o.refine_iterations > 0 else False
+        # in a frame projected onto the twisted road: what the cross-sections see beyond the map's
+        twist, twist_sigma = _road_twist(model, x_rows, roll_rows, use_eq10)
+        bank_change_L = 0.0
         if twisted:
             # The projection had the road's twist (the map's, from the frames before): pitch,
             # yaw and curvature are the road's under the vehicle, no road-in-view terms are left
@@ -846,16 +850,14 @@ class Estimator:
             # at the cross-sections, which the map does not touch (their own rolls are measured
             # against the mapped surface there, whose tilt the pose takes up), and the twist
             # there is the map's plus what the cross-sections still see.
-            residual, twist_sigma = _road_twist(model, x_rows, roll_rows, use_eq10)
-            mapped, _ = self.twist_map.mean_twist(*span)
-            twist = mapped + residual
+            mapped, span_sigma = self.twist_map.mean_twist(*span)
+            twist += mapped
             response = np.zeros((3, 2))
             _, near_sigma = self.twist_map.mean_twist(0.0, lookahead)
-            _, span_sigma = self.twist_map.mean_twist(*span)
             # the map's uncertainty through the outputs' response to a twist here and ahead
             k = _TWIST_MAP_SIGMA_SCALE
             if model.linear is not None:
-                sens = np.abs(self._twist_response(model, H, x_c, zeta, float(np.mean(x_rows)), dir_rows, J_vehicle))
+                sens = np.abs(self._twist_response(model, H, x_c, zeta, x_mean, dir_rows, J_vehicle))
                 curvature_sigma = math.hypot(curvature_sigma, k * (sens[0, 0] * near_sigma + sens[0, 1] * span_sigma))
                 s_pitch = math.hypot(s_pitch, k * (sens[1, 0] * near_sigma + sens[1, 1] * span_sigma))
                 s_yaw = math.hypot(s_yaw, k * (sens[2, 0] * near_sigma + sens[2, 1] * span_sigma))
@@ -865,11 +867,9 @@ class Estimator:
             bank_change_L = float(tw.bank_change(lookahead)[0])
             roll = roll - bank_change_L
         else:
-            bank_change_L = 0.0
-            twist, twist_sigma = _road_twist(model, x_rows, roll_rows, use_eq10)
             response = np.full((3, 2), math.nan)
             if o.refine_iterations > 0 and model.linear is not None:
-                response = self._twist_response(model, H, x_c, zeta, float(np.mean(x_rows)), dir_rows, J_vehicle)
+                response = self._twist_response(model, H, x_c, zeta, x_mean, dir_rows, J_vehicle)
         zeta_sigma = model.zeta_free_sigma if math.isfinite(model.zeta_free_sigma) else model.sigma_dzeta
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
