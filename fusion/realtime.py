@@ -34,6 +34,7 @@ from .config import DriveConfig
 from .engine import Estimate, FusionStream
 from .errors import ConfigError
 from .options import fusion_options_from_table
+from .pipeline import last_speed
 
 __all__ = ["LiveFusion"]
 
@@ -73,14 +74,10 @@ class LiveFusion:
     def push_frame(self, t_s: float, image) -> VisionEstimate:
         """A camera frame captured at ``t_s`` (bus clock, before the configured camera offset).
         The estimator is told the distance travelled since the last frame from the wheel speed
-        (for the road's twist, :attr:`vision.options.EstimatorOptions.road_twist`), as
-        :func:`fusion.pipeline.frame_speeds` has it offline: the last fresh speed at or before
-        each frame, none older than half a second; none either when the frames are over a
-        second apart."""
+        (for the road's twist, :attr:`vision.options.EstimatorOptions.road_twist`), by the rule
+        of the offline run (:func:`fusion.pipeline.last_speed`)."""
         t_cap = t_s + self.settings.camera_time_offset_s
-        t_v, v = next(((t, v) for t, v in reversed(self._speeds) if t <= t_cap), (math.nan, math.nan))
-        if not t_cap - t_v <= 0.5:
-            v = math.nan
+        v = float(last_speed(*np.array(self._speeds).T, t_cap)[0]) if self._speeds else math.nan
         t0, v0 = self._last_frame
         travel = travel_between(v0, v, t_cap - t0)
         self._last_frame = (t_cap, v)
