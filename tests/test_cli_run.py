@@ -213,3 +213,45 @@ def test_campaign_carries_the_calibration_and_skips_a_bad_drive(drive, tmp_path)
     r = vifusion("campaign", tmp_path / "missing", "--out", tmp_path / "none", "--quiet")
     assert r.returncode == 2 and r.stderr.strip().splitlines()[-1] == "error: no drive of the campaign could be run"
     assert "Traceback" not in r.stderr
+
+
+def test_vision_command_with_the_can_log_is_the_runs_vision(tmp_path):
+    """``vifusion vision --can`` gives the estimator the wheel-speed travel per frame, as
+    ``vifusion run`` does: with the same workers the two vision tables are identical, the
+    road-twist map included (the bundled sample drive's first 120 frames run into a banked
+    curve: 65 of them projected onto the twisted road, measured). Without ``--can`` the map is
+    off, and the summary line says so."""
+    d = tmp_path / "sample"
+    d.mkdir()
+    for f in SAMPLE_DRIVE.iterdir():
+        if f.name != "frames.csv":
+            (d / f.name).symlink_to(f)
+    pd.read_csv(SAMPLE_DRIVE / "frames.csv").iloc[:120].to_csv(d / "frames.csv", index=False)
+    run_out = tmp_path / "run"
+    r = vifusion("run", "--drive", d, "--out", run_out, "--workers", 1, "--no-report", "--quiet")
+    assert r.returncode == 0, r.stderr
+    common = ("vision", "--video", d / "video.mp4", "--frames", d / "frames.csv", "--config", d / "config.toml",
+              "--workers", 1, "--quiet")
+    r = vifusion(*common, "--can", d / "can.blf", "--out", tmp_path / "with_can.csv")
+    assert r.returncode == 0, r.stderr
+    assert "map off" not in r.stdout
+    ran = pd.read_csv(run_out / "vision.csv")
+    alone = pd.read_csv(tmp_path / "with_can.csv")
+    pd.testing.assert_frame_equal(alone.drop(columns="ms"), ran.drop(columns="ms"))   # all but the timing
+    assert (ran["road_twist_bank_change_deg"] != 0).sum() >= 40
+    r = vifusion(*common, "--out", tmp_path / "without.csv")
+    assert r.returncode == 0, r.stderr
+    assert "road-twist map off (no wheel speed: --can LOG)" in r.stdout
+    assert (pd.read_csv(tmp_path / "without.csv")["road_twist_bank_change_deg"] != 0).sum() == 0
+
+
+def test_vision_command_can_log_without_the_wheel_speed(copy, tmp_path):
+    """A ``--can`` log whose wheel-speed signal never appears: one line naming the log."""
+    cfg = copy / "config.toml"
+    text = cfg.read_text()
+    speed = next(line for line in text.splitlines() if line.startswith("speed ="))
+    cfg.write_text(text.replace(speed, speed.replace(speed.split('"')[1], speed.split('"')[1].split(".")[0] + ".NoSuch")))
+    r = vifusion("vision", "--video", next(copy.glob("video.*")), "--frames", copy / "frames.csv", "--config", cfg,
+                 "--can", next(copy.glob("can.*")), "--out", tmp_path / "v.csv", "--quiet")
+    one_line_error(r)
+    assert not (tmp_path / "v.csv").exists()

@@ -1,5 +1,10 @@
 """``vifusion vision --video V [--frames F] --config C --out vision.csv``: the vision estimator
-alone, frame by frame (INTERFACE.md), with an optional debug video."""
+alone, frame by frame (INTERFACE.md), with an optional debug video.
+
+With ``--can LOG`` the wheel speed is read from the drive's CAN log (the config's ``[can]``), and
+the estimator is given the distance travelled per frame, as in ``vifusion run``: the road-twist
+map (``[vision] road_twist``) then works, and the table is the one ``vifusion run`` writes for
+the same drive and workers. Without it the map is off and the summary line says so."""
 
 from __future__ import annotations
 
@@ -23,6 +28,10 @@ def add_parser(sub) -> None:
                    help="frames.csv (frame,t_s); without it, times are [video] start_s + frame / fps")
     p.add_argument("--config", required=True, type=Path, help="config TOML ([camera], [mount], [road], [vision])")
     p.add_argument("--out", required=True, type=Path, help="output CSV (written as OUT.partial, then renamed)")
+    p.add_argument("--can", type=Path, default=None,
+                   help="CAN log of the drive: the wheel speed gives the estimator the distance travelled per "
+                   "frame (the road-twist map), as in vifusion run")
+    p.add_argument("--dbc", type=Path, default=None, help="DBC for --can (default: the config's [can] dbc)")
     p.add_argument("--debug-video", type=Path, default=None, help="also write the debug video here (.mp4 or .avi)")
     p.add_argument("--method", choices=("alrazouk", "damon2018"), default=None,
                    help="estimator (default: the config's [vision] method, else alrazouk)")
@@ -42,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..config import load_config
     from ..drive import read_frame_times
+    from ..errors import InputError
 
     cfg = load_config(args.config)
     table = dict(cfg.extra.get("vision") or {})
@@ -52,6 +62,10 @@ def run(args: argparse.Namespace) -> int:
         options = replace(options, method=args.method) if args.method == "alrazouk" else \
             options_from_table({**table, "preset": "damon2018"}, str(args.config))
     frames = read_frame_times(args.frames, cfg.video, None if args.frames else count_frames(args.video))
+    if args.can is not None:
+        frames = frames.assign(speed_m_s=_wheel_speeds(args, cfg, frames["t_s"].to_numpy()))
+    elif args.dbc is not None:
+        raise InputError("--dbc needs --can (the CAN log it decodes)")
     vision, stats = estimate_video(args.video, frames, cfg.camera, cfg.mount, cfg.road, options,
                                    progress=not args.quiet, debug_video=args.debug_video,
                                     workers=args.workers or default_workers())
@@ -63,5 +77,35 @@ def run(args: argparse.Namespace) -> int:
     missing = f"; {stats['frames_missing']} listed frames not in the video" if stats["frames_missing"] else ""
     print(f"wrote {args.out}: {n} frames, {stats['valid']} valid ({100 * stats['valid'] / max(n, 1):.0f} %), "
           f"median {stats['median_ms']:.1f} ms/frame ({options.method}, {stats['workers']} worker(s)){missing}"
-          + (f"; debug video {args.debug_video}" if args.debug_video else ""))
+          + (f"; debug video {args.debug_video}" if args.debug_video else "")
+          + ("; road-twist map off (no wheel speed: --can LOG)" if options.road_twist and args.can is None else ""))
     return 0
+
+
+def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
+    """The wheel speed at each frame time (frames.csv's clock plus the config's
+    ``camera_time_offset_s``), decoded from ``--can`` as ``vifusion run`` does
+    (:func:`fusion.pipeline.frame_speeds`)."""
+    import numpy as np
+
+    from imu import read_log
+
+    from ..drive import check_overlap
+    from ..errors import ConfigError, InputError
+    from ..options import fusion_options_from_table
+    from ..pipeline import frame_speeds
+
+    for path in (args.can, args.dbc):
+        if path is not None and not path.is_file():
+            raise InputError(f"{path}: no such file")
+    if cfg.can is None:
+        raise ConfigError(f"{args.config}: [can] is missing (the CAN signals of the wheel speed)")
+    mapping = cfg.can if args.dbc is None else type(cfg.can)(**{**cfg.can.__dict__, "dbc_path": args.dbc})
+    _, settings = fusion_options_from_table(cfg.extra.get("fusion"), str(args.config))
+    imu, _ = read_log(args.can, mapping, cfg.imu, progress=not args.quiet)
+    t = np.asarray(t_s, dtype=float) + settings.camera_time_offset_s
+    check_overlap(t, imu["t_s"].to_numpy(), str(args.frames or args.video), str(args.can))
+    speeds = frame_speeds(imu, t)
+    if not np.isfinite(speeds).any():
+        raise InputError(f"{args.can}: no wheel speed at any frame (mapped as {mapping.signals.get('speed', '?')})")
+    return speeds
