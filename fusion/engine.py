@@ -382,6 +382,7 @@ class FusionStream:
         ekf, n = self.ekf, self.options.noise
         x = ekf.x
         states = [(S.YAW_REL, angles[2], n.init_angle_rad), (S.GRADE, x[S.PITCH_W] - angles[1], n.init_grade_rad),
+                  (S.GRADE_RATE, 0.0, n.init_grade_rate_rad_s),
                   (S.CURVATURE, kappa if math.isfinite(kappa) else x[S.CURVATURE], n.init_curvature_1_m)]
         if bank:
             states += [(S.BANK, x[S.ROLL_W] - angles[0], n.init_bank_rad), (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s)]

@@ -50,6 +50,8 @@ _NOISE_KEYS = {
     "bank_rate_preview_floor_deg_s": ("bank_rate_preview_floor_rad_s", math.radians),
     "bank_rate_preview_gain": ("bank_rate_preview_gain", float),
     "grade_walk_deg_sqrt_s": ("grade_walk_rad_sqrt_s", math.radians),
+    "grade_rate_deg_s": ("grade_rate_rad_s", math.radians),
+    "grade_rate_tau_s": ("grade_rate_tau_s", float),
     "longitudinal_jerk_m_s3": ("accel_x_walk_m_s2_sqrt_s", float),
     "vision_sigma_scale": ("vision_sigma_scale", float),
     "vision_sigma_floor_deg": ("vision_sigma_floor_rad", math.radians),
@@ -65,7 +67,7 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
     changes = {}
     for key, (name, conv) in _NOISE_KEYS.items():
         if t.has(key):
-            lo = 0.0 if key != "gate_probability" else 0.5
+            lo = 0.5 if key == "gate_probability" else 0.01 if key.endswith("_tau_s") else 0.0   # a time constant divides
             hi = None if key != "gate_probability" else 0.999999
             changes[name] = conv(t.get(key, "float", min=lo, max=hi))
     for key, name, conv in (("accel_bias_sigma_m_s2", "init_accel_bias_m_s2", float),
