@@ -115,15 +115,15 @@ def test_frame_source_order_and_errors(tmp_path):
 
 def test_workers_share_a_video_like_one_process():
     """Two processes over the sample drive's mp4 (the second seeks to its piece and warms up on
-    the 30 frames before it) give the single run's table: the same frames, the first piece
-    identical, and the same accuracy against truth (roll RMSE within 0.02 deg; measured 0.630
-    and 0.636). After the cut some rows depend on the seed chain (vision.video.WARM_UP_FRAMES):
-    on this 640x360 drive the dashed centre line is found on some frames and not on others, and
-    which ones depends on the BEV narrowed to the seed's lines, so a frame can be solved with
-    three lines (eq. (10), sigma 0.03 deg) in one chain and two (eq. (8), sigma 0.3 deg) in the
-    other. The rows must then agree within their own uncertainty: at most 5 combined sigma
-    (measured: largest 3.9 sigma, 1.27 deg, a two-line frame in a bank runoff; the same code with
-    the lane fit's sums in another order gave 0.79 deg, 2.4 sigma)."""
+    the 3 s before it, vision.video.WARM_UP_S) give the single run's table: the same frames, the
+    first piece identical, and the same accuracy against truth (roll RMSE within 0.02 deg). After
+    the cut rows can depend on the seed chain: on this 640x360 drive the dashed centre line is
+    found on some frames and not on others, and which ones depends on the BEV narrowed to the
+    seed's lines, so a frame can be solved with three lines (eq. (10), sigma 0.03 deg) in one
+    chain and two (eq. (8), sigma 0.3 deg) in the other. The rows must then agree within their
+    own uncertainty: at most 5 combined sigma. (Measured: with the 3 s warm-up every row equals
+    the single run's, roll RMSE 0.630 deg both; with the earlier 1 s, 0.630 and 0.636, the
+    largest difference 3.9 sigma, 1.27 deg, a two-line frame in a bank runoff.)"""
     from fusion.config import load_config
     from fusion.drive import SAMPLE_DRIVE
     from vision.video import estimate_video

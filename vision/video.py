@@ -163,7 +163,7 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         one process: with a debug video the run uses one worker (``stats["workers"]`` says so).
     workers : int
         Processes that share the frames. The video is cut into one contiguous piece per
-        process, each decoded from its own seek point and started :data:`WARM_UP_FRAMES` early
+        process, each decoded from its own seek point and started :data:`WARM_UP_S` early
         (the estimator needs no seed for correctness, but it carries the vertical curvature's
         prior from frame to frame). 1 runs in this process.
 
@@ -185,7 +185,9 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
     speeds = ({int(f): float(v) for f, v in zip(frames["frame"], frames["speed_m_s"])}
               if "speed_m_s" in frames else None)
     wanted = sorted(want)
-    workers = 1 if debug_video is not None or len(wanted) < 2 * _MIN_PIECE else int(workers)
+    warm_up = warm_up_frames(_fps_of(frames))
+    # a piece pays for its seek and warm-up only if it is longer than them: fewer workers on short videos
+    workers = 1 if debug_video is not None else max(1, min(int(workers), len(wanted) // (warm_up + _MIN_PIECE)))
     bar = tqdm(total=len(wanted), desc="vision", unit="frame", disable=not progress)
     try:
         if workers == 1:
@@ -193,7 +195,7 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
                                            debug_fps or _fps_of(frames), bar.update, speeds)
         else:
             rows, n_read = _estimate_parallel(src, wanted, want, (camera, mount, road, options), workers, bar.update,
-                                              speeds)
+                                              speeds, warm_up)
     finally:
         bar.close()
     table = pd.DataFrame(rows, columns=list(VISION_COLUMNS))
@@ -208,15 +210,18 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
     return table, stats
 
 
-#: Smallest piece of a video given to one worker (frames): each piece costs a seek and a warm-up.
+#: Smallest piece of a video given to one worker (frames) besides its warm-up: each piece costs a
+#: seek and a warm-up.
 _MIN_PIECE = 60
-#: Frames a worker's piece starts early (their rows dropped), for the estimator's frame-to-frame
-#: state (vertical-curvature prior, seed, the road's twist map: 30 frames at 10-30 m/s cover
-#: the 7-22 m ahead its cross-sections measure) to forget the cold start. Measured on the sample drive
-#: (360 frames, 2 workers): every row equals the single run's to 1e-6 deg except 7 frames after
-#: the cut (0.2-0.34 deg apart), where the result depends on the seed; roll RMSE against truth
-#: 0.615 vs 0.614 deg (``tests/test_vision_cli.py`` checks the RMSEs agree).
-WARM_UP_FRAMES = 30
+#: Seconds of video a worker's piece starts early (their rows dropped), for the estimator's
+#: frame-to-frame state (vertical-curvature prior, seed, the road's twist map) to forget the
+#: cold start. The map holds the twist of the road the vehicle will reach, measured 7-22 m ahead
+#: and kept up to 60 m (:data:`vision.twistmap.AHEAD_M`): 3 s at 20 m/s. With 1 s (30 frames) the
+#: hill drive's second piece began in a runoff with an empty map: vision yaw 0.219 deg RMS
+#: against 0.085 for one worker, the fused yaw 0.124 against 0.035; with 3 s 0.091 and 0.038
+#: (5 s: 0.088, 0.037). The rows after the cut then agree with one worker's within the seed's
+#: chaos (``tests/test_vision_cli.py``).
+WARM_UP_S = 3.0
 
 
 def _frames_from(src: FrameSource, start: int, luma: bool = False) -> Iterator[tuple[int, np.ndarray]]:
@@ -440,19 +445,25 @@ def _numba_started() -> int:  # pragma: no cover (numba)
     return 1
 
 
+def warm_up_frames(fps: float) -> int:
+    """Frames of :data:`WARM_UP_S` at ``fps``."""
+    return int(math.ceil(WARM_UP_S * fps))
+
+
 def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, workers: int, tick,
-                       speeds: dict | None = None):
+                       speeds: dict | None = None, warm_up: int = 90):
     """:func:`_estimate_piece` over one contiguous piece per worker in a process pool. Each
-    piece but the first starts :data:`WARM_UP_FRAMES` early and drops those rows: the estimator
-    carries the vertical curvature's prior from frame to frame (and seeds the search), so the
-    rows after the warm-up are those of a single run through the video."""
+    piece but the first starts ``warm_up`` frames early (:data:`WARM_UP_S`) and drops those
+    rows: the estimator carries state from frame to frame (the vertical curvature's prior, the
+    search's seed, the road's twist map), so the rows after the warm-up are those of a single
+    run through the video."""
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    starts = _piece_starts(len(wanted), workers, WARM_UP_FRAMES)
+    starts = _piece_starts(len(wanted), workers, warm_up)
     jobs = []
     for k, end in zip(starts, starts[1:] + [len(wanted)]):
-        piece, warm = wanted[k:end], wanted[max(0, k - WARM_UP_FRAMES):k]
+        piece, warm = wanted[k:end], wanted[max(0, k - warm_up):k]
         jobs.append((src, piece, warm, {i: times[i] for i in warm + piece}, setup,
                      None if speeds is None else {i: speeds.get(i, math.nan) for i in warm + piece}))
     ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
