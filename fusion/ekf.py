@@ -37,10 +37,12 @@ The grade has a rate state for the same reason: a vertical curve is a ramp of th
 R``: 0.4 deg/s at 80 km/h over a 3000 m crest or sag, 1.3 deg/s over 1000 m), which a random
 walk could only follow with a lag; the grade's own walk is then only what the rate leaves out.
 As the bank rate, it decays fast while the vision is away, so that the grade holds. Measured on
-``hill_banked_curve_5deg`` (+5 % to -3 % over 150 m, a runoff in the sag; rendered, the whole
-run): with the grade a random walk of 0.2 deg/sqrt(s) the fused pitch lagged the vision's by up
-to 0.8 deg, pitch RMSE 0.140 deg against the vision's own 0.068; with the rate (and the rate in
-the gravity model, below) 0.093.
+``hill_banked_curve_5deg`` (+5 % to -3 % over 150 m, a runoff in the sag; rendered, the same
+vision for both): with the grade a random walk of 0.2 deg/sqrt(s) the fused pitch RMSE was 0.064
+deg, with the rate (and the rate in the gravity model, below) 0.057; on a vision whose sag was
+noisier (a worker's cold start there) 0.140 against 0.093, the random walk lagging the vision's
+pitch by up to 0.8 deg. With the vision drawn from the truth (0.3 deg noise): 0.150 against
+0.095 (``tests/test_fusion_filter.py::test_vertical_curves``).
 
 The bank has a rate state: superelevation runoffs are ramps of a few deg/s that a plain random
 walk could only follow by letting vision noise through; with a rate state the ramp is tracked
@@ -402,7 +404,7 @@ class ImuStep(NamedTuple):
     gyro_rad_s: np.ndarray           # mean measured rate over the interval (bias included)
     follow_road: bool = False        # no lane fit: the road turns with the vehicle
     lateral_offset_m: float = 0.0    # vehicle's offset from the lane line the curvature is of
-    vision_gap: bool = False         # no vision for a while: the bank rate decays fast (bank held)
+    vision_gap: bool = False         # no vision for a while: the bank and grade rates decay fast (held)
 
 
 # ---- small dense products, written as loops: for these sizes (3x3, 16x16, 16x3) they are
