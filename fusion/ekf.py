@@ -72,10 +72,13 @@ against 0.45), which ``defer_roll = false`` in ``[fusion]`` gives back. Pitch an
 applied at capture with the twist correction of :meth:`AttitudeEKF.update_vision`.
 
 On a curve the road ahead has also turned, by ``phi = asin(kappa L)``, and in the vehicle's frame
-it is banked less than ``bank`` (:func:`road_ahead_as_seen`): the roll is modelled as ``roll_w -
-bank + r`` with ``r`` about ``bank (1 - cos phi)`` (0.016 deg on the benchmark's 7 deg curve of
-200 m radius, where it was the vision roll's mean error on steady road; 0.5 deg on a 10 deg curve
-of 33 m radius at 15 m), deferred or not.
+it is banked less than ``bank``, and its grade, turned with it, slopes across the vehicle's axis
+(:func:`road_ahead_as_seen`): the roll is modelled as ``roll_w - bank + r`` with ``r`` about
+``bank (1 - cos phi) + grade sin phi`` (0.016 deg on the benchmark's 7 deg curve of 200 m radius,
+where it was the vision roll's mean error on steady road; 0.5 deg on a 10 deg curve of 33 m radius
+at 15 m; -0.09 deg on the hill drive's 250 m curve at -3 %), deferred or not. The grade's part
+is only as good as the grade: at constant speed the longitudinal accelerometer bias and the
+vehicle's pitch relative to level cannot be told apart (0.04 m/s^2 is 0.23 deg of grade).
 
 With three lines the estimator also measures the road's twist at its cross-sections, ``tau =
 d bank / ds`` (rad/m, :func:`vision.estimator._road_twist`). It travels with the deferred roll
@@ -286,47 +289,61 @@ class NoiseModel:
         return np.maximum(own, self.curvature_sigma_floor_1_m + self.curvature_sigma_floor_rel * np.abs(curvature_1_m))
 
 
-def road_ahead_as_seen(bank_rad, curvature_1_m, distance_m):
-    """The bank and the twist of a steadily banked curve ``distance_m`` ahead as the vehicle
-    sees them in its own frame, which is how the vision's cross-sections measure them.
+def road_ahead_as_seen(bank_rad, curvature_1_m, distance_m, grade_rad=0.0):
+    """The bank and the twist of a steadily banked, steadily graded curve ``distance_m`` ahead
+    as the vehicle sees them in its own frame, which is how the vision's cross-sections
+    measure them.
 
     A cross-section at forward distance ``x`` meets a curve of curvature ``kappa`` where the
-    road has turned by ``phi = asin(kappa x)``. Its cross-slope, ``bank`` about the road's own
-    tangent there, splits into a slope across the vehicle's x axis and one along it (an
-    apparent grade change, which the estimator takes as vertical curvature). The markings'
-    heights along the cross-section, in the frame of the road under the vehicle, rise with
-    ``S = (cos phi - 1) sin b cos b / (cos^2 b + sin^2 b cos phi)`` per metre across, so that
-    the vision's roll there is ``roll_w - bank + r`` with ``r = -atan S``, about ``bank (1 -
-    cos phi)``, and its twist (``d/dx`` of the bank it sees) ``tau cos phi - dr/dx`` with
-    ``dr/dx = kappa tan(phi) sin b cos b / (D^2 (1 + S^2))``, ``D = cos^2 b + sin^2 b cos phi``,
-    about ``bank kappa^2 x``. Returns ``(bank - r, -dr/dx, phi)``, rad, rad/m and rad (scalars
-    or arrays).
+    road has turned by ``phi = asin(kappa x)`` about the vertical. With the road's frame under
+    the vehicle ``R0 = Ry(grade) Rx(bank)`` (the state's), the road there is ``Rz(phi) R0``
+    (a helix: the same bank about its own tangent, the same grade along it), and its normal in
+    the frame under the vehicle is ``n = R0^T Rz(phi) R0 e_z``. The markings' heights along
+    the cross-section rise with ``S = -n_y / n_z`` per metre across, so that the vision's roll
+    there is ``roll_w - bank + r`` with ``r = -atan S``: about ``bank (1 - cos phi) + grade sin
+    phi``. The grade's part is the larger one on a graded curve: the grade turned with the
+    road is a slope across the vehicle's axis (-0.094 deg at 15 m on the hill drive's 250 m
+    curve at -3 %, against +0.009 deg from its 5 deg bank; 1.4 deg on a 50 m curve at 6 %).
+    Its twist (``d/dx`` of the bank it sees) is ``tau cos phi - dr/dx``, ``dr/dx = dr/dphi kappa
+    / cos phi`` (analytic), about ``-(bank kappa^2 x + grade kappa)`` with the bank and grade
+    constant. Returns ``(bank - r, -dr/dx, phi)``, rad, rad/m and rad (scalars or arrays).
+
+    Against the exact surface of the simulator's road (three markings' heights at a forward
+    distance) it holds to 0.03 % on the benchmark's curves and to 2 % up to ``kappa x = 0.45``
+    (a 10 deg curve of 33 m radius at 15 m), where the markings' own radii begin to differ
+    (``tests/test_fusion_filter.py::test_road_ahead_as_seen_matches_the_simulated_road``).
+    Up to ``2733e2a`` it took the bank alone: on the hill drive's graded curve the vision roll
+    then read 0.075 deg low on steady road, which the filter took for bank (the fused bank
+    ended 0.38 deg off).
 
     On the simulator's 7 deg curve of 200 m radius (the benchmark's right-hand drive) the vision
     roll on steady road was off by +0.017 deg on average and its twist by -3.0e-3 deg/m (about
     0.07 deg/s of bank rate at 80 km/h), against +0.016 and -2.2e-3 from this; on the left-hand
     curves (4e-3 1/m, -5 and -6 deg) -0.008 / -0.011 deg against -0.009 / -0.010. Taking it
     out, the steady-road roll error RMS fell from 0.010 / 0.020 / 0.013 / 0.021 to 0.003 /
-    0.006 / 0.004 / 0.012 deg on the four banked curves of the three drives. Against the exact
-    surface of the simulator's road (three markings' heights at a forward distance) it holds to
-    0.03 % on those curves and to 1.5 % up to ``kappa x = 0.45`` (a 10 deg curve of 33 m
-    radius at 15 m, 0.5 deg of effect), where the markings' own radii begin to differ
-    (``tests/test_fusion_filter.py::test_road_ahead_as_seen_matches_the_simulated_road``).
+    0.006 / 0.004 / 0.012 deg on the four banked curves of the three drives.
     """
-    if np.ndim(bank_rad) or np.ndim(curvature_1_m) or np.ndim(distance_m):
-        return _road_turn_v(bank_rad, curvature_1_m, distance_m)
-    return _road_turn(float(bank_rad), float(curvature_1_m), float(distance_m))
+    if np.ndim(bank_rad) or np.ndim(curvature_1_m) or np.ndim(distance_m) or np.ndim(grade_rad):
+        return _road_turn_v(bank_rad, curvature_1_m, distance_m, grade_rad)
+    return _road_turn(float(bank_rad), float(curvature_1_m), float(distance_m), float(grade_rad))
 
 
-def _road_turn(b: float, k: float, d: float) -> tuple[float, float, float]:
-    """:func:`road_ahead_as_seen` for scalars (under 1 us; the filter calls it twice a frame).
+def _road_turn(b: float, k: float, d: float, g: float = 0.0) -> tuple[float, float, float]:
+    """:func:`road_ahead_as_seen` for scalars (a few us; the filter calls it twice a frame).
     ``phi`` is clipped short of a quarter turn: no cross-section meets the curve beyond its
     radius."""
     phi = math.asin(max(-0.999, min(0.999, k * d)))
-    cphi, sb, cb = math.cos(phi), math.sin(b), math.cos(b)
-    D = cb * cb + sb * sb * cphi
-    S = (cphi - 1.0) * sb * cb / D
-    drdx = k * math.tan(phi) * sb * cb / (D * D * (1.0 + S * S))
+    cphi, sphi = math.cos(phi), math.sin(phi)
+    sb, cb, sg, cg = math.sin(b), math.cos(b), math.sin(g), math.cos(g)
+    # w = Rz(phi) R0 e_z and its derivative in phi; n = R0^T w = Rx(-b) Ry(-g) w
+    w1, w2, w3 = cphi * sg * cb + sphi * sb, sphi * sg * cb - cphi * sb, cg * cb
+    dw1, dw2 = -sphi * sg * cb + cphi * sb, cphi * sg * cb + sphi * sb
+    a, da = sg * w1 + cg * w3, sg * dw1
+    ny, nz = cb * w2 + sb * a, -sb * w2 + cb * a
+    dny, dnz = cb * dw2 + sb * da, -sb * dw2 + cb * da
+    S = -ny / nz
+    dS = -(dny * nz - ny * dnz) / (nz * nz)
+    drdx = -dS / (1.0 + S * S) * k / cphi
     return b + math.atan(S), -drdx, phi
 
 
@@ -821,17 +838,34 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     def update_road_twist(self, twist_rad_m: float, sigma_rad_m: float, lookahead_m: float = 0.0) -> bool:
         """The vision's road twist at the road under the wheels (:class:`RollAhead`) as the
-        bank rate: ``d bank / dt = v d bank / ds``, 1-sigma ``v`` times
-        :meth:`NoiseModel.twist_sigma_rad_m`, after the part a steadily banked curve shows
-        ``lookahead_m`` ahead (:func:`road_ahead_as_seen`, with the bank and curvature of the
-        state: the road the twist was measured on) is taken out. Gated like every update."""
-        v = float(self.x[S.SPEED])
+        bank rate: ``d bank / dt = v d bank / ds``. The twist a steadily banked, graded curve
+        shows ``lookahead_m`` ahead (:func:`road_ahead_as_seen`, with the bank, grade and
+        curvature of the state: the road the twist was measured on) is part of the model::
+
+            z = twist,   h(x) = bank_rate cos(phi) / v + turned(bank, grade, kappa)
+
+        with 1-sigma :meth:`NoiseModel.twist_sigma_rad_m`. The Jacobian has the bank rate and
+        the grade: the grade's part, about ``-grade kappa`` (0.13 deg/s of bank rate at 80 km/h
+        on the hill drive's 250 m curve at -3 %), is only as good as the grade, which the
+        longitudinal accelerometer bias blurs (0.04 m/s^2 is 0.23 deg); taken as known, that
+        error became a bank-rate bias (synthetic 60 s drive with the twist: bank 0.145 -> 0.173
+        deg; with the grade in the Jacobian 0.145). The bank's and curvature's parts are second
+        order (``bank kappa^2 L``) and taken as known: with them in the Jacobian the runoffs'
+        twist errors reached the curvature (left-hand drive's bank 0.267 -> 0.308 deg, same
+        vision). Gated like every update."""
+        x = self.x
+        v = float(x[S.SPEED])
         if not (v > 1.0 and math.isfinite(twist_rad_m)):
             return False
-        _, turned, phi = _road_turn(float(self.x[S.BANK]), float(self.x[S.CURVATURE]), lookahead_m)
-        tau = (twist_rad_m - turned) / math.cos(phi)
-        sig = v * float(self.noise.twist_sigma_rad_m(twist_rad_m, sigma_rad_m))
-        return self.gated_update_state(S.BANK_RATE, v * tau, sig * sig)
+        b, k, g = float(x[S.BANK]), float(x[S.CURVATURE]), float(x[S.GRADE])
+        _, turned, phi = _road_turn(b, k, lookahead_m, g)
+        H = np.zeros((1, DIM_X))
+        H[0, S.BANK_RATE] = math.cos(phi) / v
+        h = 1e-3   # rad; central difference (``turned`` is linear in the grade to 1e-6)
+        H[0, S.GRADE] = (_road_turn(b, k, lookahead_m, g + h)[1] - _road_turn(b, k, lookahead_m, g - h)[1]) / (2 * h)
+        hx = np.array([float(x[S.BANK_RATE]) * math.cos(phi) / v + turned])
+        sig = float(self.noise.twist_sigma_rad_m(twist_rad_m, sigma_rad_m))
+        return self.gated_update(np.array([twist_rad_m]), H, hx, np.array([[sig * sig]]))
 
     @staticmethod
     def _bank_turned_ahead(H_roll: np.ndarray, x: np.ndarray, lookahead_m: float) -> float:
@@ -840,11 +874,13 @@ class AttitudeEKF(ExtendedKalmanFilter):
         and adds its derivatives to the roll's Jacobian row ``H_roll`` (in place)."""
         if not lookahead_m > 0.0:
             return 0.0
-        bank, kappa = float(x[S.BANK]), float(x[S.CURVATURE])
-        seen, _, phi = _road_turn(bank, kappa, lookahead_m)
-        # derivatives of r ~ bank (1 - cos phi), phi = asin(kappa L): to first order in the bank
+        bank, kappa, grade = float(x[S.BANK]), float(x[S.CURVATURE]), float(x[S.GRADE])
+        seen, _, phi = _road_turn(bank, kappa, lookahead_m, grade)
+        # derivatives of r ~ bank (1 - cos phi) + grade sin phi, phi = asin(kappa L): to first
+        # order in the bank and grade
         H_roll[S.BANK] += 1.0 - math.cos(phi)
-        H_roll[S.CURVATURE] += bank * lookahead_m * math.tan(phi)
+        H_roll[S.GRADE] += math.sin(phi)
+        H_roll[S.CURVATURE] += (bank * math.tan(phi) + grade) * lookahead_m
         return bank - seen
 
     def specific_force_model(self, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0):

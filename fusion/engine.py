@@ -321,7 +321,7 @@ class FusionStream:
             if self._roll_rejected_in_row >= self.options.reacquire_after_rejections:
                 # the bank drifted away from what the vision sees: take it from the vision again
                 n = self.options.noise
-                seen, _, _ = road_ahead_as_seen(ekf.x[S.BANK], ekf.x[S.CURVATURE], m.lookahead_m)
+                seen, _, _ = road_ahead_as_seen(ekf.x[S.BANK], ekf.x[S.CURVATURE], m.lookahead_m, ekf.x[S.GRADE])
                 predicted = vision_hx(ekf.x)[0] + ekf.x[S.BANK] - seen     # as update_roll_ahead has it
                 bank = ekf.x[S.BANK] + wrap_angle(predicted - (m.roll_rad + turned))
                 self._reset(((S.BANK, bank, n.init_bank_rad), (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s)))

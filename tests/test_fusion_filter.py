@@ -191,6 +191,29 @@ def test_vertical_curves():
     assert rmse_deg(f, d.truth, "roll_world_deg") < 0.10
 
 
+def test_graded_curve_as_the_cross_sections_see_it():
+    """The hill drive's right-hand curve of 250 m radius lies on a -3 % grade: 12 m ahead the
+    road has turned by 2.8 deg, and the grade turned with it is a slope across the vehicle's
+    axis, -0.08 deg of roll the cross-sections there see and no bank has
+    (:func:`fusion.ekf.road_ahead_as_seen`). The vision roll here is drawn from the simulator's
+    exact surface at 12 m (every 5th frame, interpolated), 0.05 deg noise, no lateral
+    accelerometer bias (so that the bank is observable). Measured: on the steady curve (from
+    17 s) the fused bank is 0.005 deg off on average and the roll 0.022 deg RMS; with the grade
+    left out of the model 0.081 and 0.054."""
+    d = synth_drive("hill_banked_curve_5deg.toml", vision_sigma_deg=0.05, accel_bias_m_s2=(0.03, 0.0, -0.03))
+    v, tt = d.vision.copy(), d.truth["t_s"].to_numpy()
+    t, L, k = v["t_s"].to_numpy(), 12.0, slice(None, None, 5)
+    station, offset = np.interp(t, tt, d.truth["station_m"]), np.interp(t, tt, d.truth["lateral_offset_m"])
+    seen = [_roll_to_cross_section_deg(d.traj.road, s, o, L) for s, o in zip(station[k], offset[k])]
+    v["roll_deg"] += np.interp(t, t[k], seen)
+    v["roll_lookahead_m"] = L
+    f = fuse(d.imu, v, lever_arm_m=d.lever_arm_m, options=OPTIONS).fused
+    steady = f["t_s"].to_numpy() >= 17.0
+    bank_error = f["bank_deg"].to_numpy() - np.interp(f["t_s"], tt, d.truth["bank_deg"])
+    assert abs(bank_error[steady].mean()) < 0.03, bank_error[steady].mean()
+    assert rmse_deg(f, d.truth, "roll_deg") < 0.035
+
+
 def test_fused_attitude_beats_vision_alone(drive, forward):
     """Vision noise is 0.3 deg per frame (white); the gyro carries the attitude between
     frames, so the fused angles must be clearly better: roll and pitch under 0.2 deg, yaw
@@ -485,24 +508,30 @@ def _roll_to_cross_section_deg(road, s: float, d: float, ahead_m: float) -> floa
 
 
 def test_road_ahead_as_seen_matches_the_simulated_road():
-    """On a steadily banked curve the road ``x`` ahead has turned by ``asin(kappa x)``, and in
-    the vehicle's frame, where the vision's cross-sections measure it, it is banked less: the
-    vision roll is ``roll_w - bank + r``, ``r`` about ``bank (1 - cos(asin(kappa x)))``, and its
-    twist about ``-bank kappa^2 x`` with the bank constant (:func:`fusion.ekf.road_ahead_as_seen`).
-    Against the simulator's exact surface, for the benchmark's curves and two tight ones: within
-    0.2 % of the effect plus 1e-4 deg on the benchmark's (the effect: 0.02 deg at 15 m on its
-    7 deg, 200 m curve), within 2 % where ``kappa x`` reaches 0.45 (0.5 deg of effect; there
-    the three markings' own radii start to differ, which the formula leaves out)."""
+    """On a steadily banked, steadily graded curve the road ``x`` ahead has turned by
+    ``phi = asin(kappa x)``, and in the vehicle's frame, where the vision's cross-sections
+    measure it, its bank is not the bank under the wheels: the vision roll is ``roll_w - bank +
+    r``, ``r`` about ``bank (1 - cos phi) + grade sin phi``, and its twist about ``-(bank
+    kappa^2 x + grade kappa)`` with bank and grade constant (:func:`fusion.ekf.road_ahead_as_seen`).
+    Against the simulator's exact surface, for the benchmark's curves (flat, and the hill
+    drive's, 250 m at -3 %) and tight ones: within 0.2 % of the effect plus 1e-4 deg on the
+    benchmark's (the effect: 0.02 deg at 15 m on the 7 deg, 200 m curve, -0.09 deg on the hill
+    drive's), within 2 % where ``kappa x`` reaches 0.45 (0.5 deg of effect; there the three
+    markings' own radii start to differ, which the formula leaves out)."""
     from drivesim.road import Road, Segment
 
-    for kappa, bank_deg, tol in ((-0.005, 7.0, 0.002), (0.004, -5.0, 0.002), (-0.02, 8.0, 0.02), (0.03, -10.0, 0.02)):
-        road = Road([Segment(60.0), Segment(70.0, kappa, bank_deg), Segment(1000.0, kappa, bank_deg)])
+    for kappa, bank_deg, grade_pct, tol in ((-0.005, 7.0, 0.0, 0.002), (0.004, -5.0, 0.0, 0.002),
+                                            (-0.004, 5.0, -3.0, 0.002), (0.004, 0.0, 5.0, 0.002),
+                                            (-0.02, 8.0, 0.0, 0.02), (0.03, -10.0, 0.0, 0.02), (-0.02, 8.0, 6.0, 0.02)):
+        road = Road([Segment(60.0, grade_pct=grade_pct), Segment(70.0, kappa, bank_deg, grade_pct),
+                     Segment(1000.0, kappa, bank_deg, grade_pct)])
         s, d, bank = 400.0, -1.75, np.radians(bank_deg)
+        grade = -np.arctan(grade_pct / 100.0)          # Ry(grade): positive nose down (vision.frames)
         for L in (10.0, 15.0):
-            seen, twist, _ = ekf.road_ahead_as_seen(bank, kappa, L)
+            seen, twist, _ = ekf.road_ahead_as_seen(bank, kappa, L, grade)
             want = np.degrees(bank - seen)          # roll_w - bank + r with roll_w = bank
             got = _roll_to_cross_section_deg(road, s, d, L)
-            assert abs(got - want) <= tol * abs(want) + 1e-4, (kappa, bank_deg, L, got, want)
+            assert abs(got - want) <= tol * abs(want) + 1e-4, (kappa, bank_deg, grade_pct, L, got, want)
             # the twist: how that roll changes with the distance (a central difference over 1 m)
             slope = _roll_to_cross_section_deg(road, s, d, L + 0.5) - _roll_to_cross_section_deg(road, s, d, L - 0.5)
             assert abs(slope + np.degrees(twist)) <= tol * abs(np.degrees(twist)) + 1e-4, (kappa, L, slope, twist)

@@ -148,7 +148,7 @@ def road_in_view(drive: Path, run_dir: Path) -> dict:
 
 def _road_turn(truth: pd.DataFrame, tr: pd.DataFrame, lookahead_m: np.ndarray):
     """The vision roll's and twist's parts from the road turning over the lookahead (the truth's
-    bank there and curvature at the vehicle, :func:`fusion.ekf.road_ahead_as_seen`): roll (rad,
+    bank there, curvature and road pitch at the vehicle, :func:`fusion.ekf.road_ahead_as_seen`): roll (rad,
     add to the roll relative to the road there), twist (rad/m), and the factor ``cos(phi)`` on
     the road's own twist."""
     from fusion.ekf import road_ahead_as_seen
@@ -156,7 +156,7 @@ def _road_turn(truth: pd.DataFrame, tr: pd.DataFrame, lookahead_m: np.ndarray):
     L = np.nan_to_num(lookahead_m)
     bank_ahead = np.radians(np.interp(tr["station_m"].to_numpy() + L, truth["station_m"], truth["bank_deg"]))
     kappa = tr["curvature_1_m"].to_numpy()
-    seen, twist, phi = road_ahead_as_seen(bank_ahead, kappa, L)
+    seen, twist, phi = road_ahead_as_seen(bank_ahead, kappa, L, np.radians(tr["road_pitch_deg"].to_numpy()))
     return bank_ahead - seen, twist, np.cos(phi)
 
 
