@@ -140,6 +140,7 @@ class FusionStream:
         self._vision_initialized = False
         self._lane_fit = (0.0, -math.inf)   # lateral offset m, time of the last lane fit
         self._last_vision_t = -math.inf
+        self._roll_hole_until = -math.inf   # vision back after a gap: no deferred roll arrives before
         self._road_rate = 0.0
         self._rejected_in_row = 0
         self._speed_initialized = False
@@ -333,7 +334,24 @@ class FusionStream:
             return
         t, angles, kappa, offset = m.t_s, m.angles_rad, m.curvature_1_m, m.lateral_offset_m
         v = ekf.x[S.SPEED]
-        defer = self.options.defer_roll and m.roll_lookahead_m > 0.0 and v > 1.0 and self._vision_initialized
+        # Vision back after a gap longer than the deferral: no deferred roll is on its way, the
+        # bank's sigma has grown to degrees, and for the next L / v (0.5-0.8 s) only pitch and
+        # yaw would come in, moving the bank within that sigma (roll 0.39 deg off on steady road
+        # after 5 s without lanes, measured). The first frame back is taken as the first frame
+        # is, its roll at capture as the bank ahead, after its twist as the bank rate; until the
+        # first deferred roll is due the frames' twists are applied at capture (the rate ahead
+        # for the rate here), not again with their rolls.
+        resumed = (t - self._last_vision_t > _VISION_GAP_S
+                   and not any(isinstance(p, RollAhead) for p in self._pending))
+        defer = (self.options.defer_roll and m.roll_lookahead_m > 0.0 and v > 1.0 and self._vision_initialized
+                 and not resumed)
+        twist_now = self._vision_initialized and math.isfinite(m.road_twist_rad_m) and (
+            resumed or (defer and t < self._roll_hole_until))
+        if resumed and v > 1.0 and m.roll_lookahead_m > 0.0:
+            self._roll_hole_until = t + m.roll_lookahead_m / v
+        if twist_now:
+            tw_ok = ekf.update_road_twist(m.road_twist_rad_m, m.road_twist_sigma_rad_m, m.roll_lookahead_m)
+            self.counts["twist_used" if tw_ok else "twist_rejected"] += first
         rate_ahead = 0.0
         if defer:
             dt_ahead = m.roll_lookahead_m / v
@@ -346,7 +364,8 @@ class FusionStream:
                                             n.bank_rate_preview_gain * abs(ekf.x[S.BANK_RATE])))
             if first:
                 bisect.insort_right(self._pending, RollAhead(t + dt_ahead, float(angles[0]), float(m.sigmas_rad[0]),
-                                                             dt_ahead, self._roll_prop, m.road_twist_rad_m,
+                                                             dt_ahead, self._roll_prop,
+                                                             math.nan if twist_now else m.road_twist_rad_m,
                                                              m.road_twist_sigma_rad_m, m.roll_lookahead_m),
                                     key=_time_of)
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
@@ -418,13 +437,14 @@ class FusionStream:
         newest, e.g. the wheel speed initialised, would gate the speed against a state of 0 m/s
         and reject it sample after sample)."""
         ekf = self.ekf
-        return (self._vision_initialized, self._lane_fit, self._last_vision_t, self._road_rate, self._rejected_in_row,
-                self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
+        return (self._vision_initialized, self._lane_fit, self._last_vision_t, self._roll_hole_until, self._road_rate,
+                self._rejected_in_row, self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
                 ekf._bank_rate_scheduled, float(ekf._q_scheduled[S.BANK_RATE]))
 
     def _restore(self, state: tuple) -> None:
         ekf = self.ekf
-        (self._vision_initialized, self._lane_fit, self._last_vision_t, self._road_rate, self._rejected_in_row,
+        (self._vision_initialized, self._lane_fit, self._last_vision_t, self._roll_hole_until, self._road_rate,
+         self._rejected_in_row,
          self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
          ekf._bank_rate_scheduled, ekf._q_scheduled[S.BANK_RATE]) = state
 
