@@ -357,7 +357,7 @@ def main(argv=None) -> int:
     head = f"{'drive':<26} {'source':<22} {'roll':>7} {'pitch':>7} {'yaw':>7} {'bank':>7}"
     print(head)
     print("-" * len(head))
-    for name, acc, sm, nees_f, nees_s, _, _ in rows:
+    for name, acc, sm, nees_f, nees_s, *_ in rows:
         for label, vals in (("fused (forward)", acc["fused"]), ("fused (smoothed)", sm), ("vision alone", acc.get("vision", {})),
                             ("IMU - vision (2018)", acc.get("imu_minus_vision", {}))):
             cells = " ".join(f"{vals[a]:7.3f}" if a in vals else f"{'':7}" for a in ("roll", "pitch", "yaw", "bank"))
