@@ -341,14 +341,16 @@ class FusionStream:
         # is, its roll at capture as the bank ahead, after its twist as the bank rate; until the
         # first deferred roll is due the frames' twists are applied at capture (the rate ahead
         # for the rate here), not again with their rolls.
-        resumed = (t - self._last_vision_t > _VISION_GAP_S
-                   and not any(isinstance(p, RollAhead) for p in self._pending))
+        # (A gap longer than L / v: every roll from before it has been applied. From the times
+        # alone, so that a replay of late results (_apply_late) decides as the first pass did.)
+        ahead_s = m.roll_lookahead_m / v if v > 1.0 and m.roll_lookahead_m > 0.0 else 0.0
+        resumed = t - self._last_vision_t > max(_VISION_GAP_S, ahead_s)
         defer = (self.options.defer_roll and m.roll_lookahead_m > 0.0 and v > 1.0 and self._vision_initialized
                  and not resumed)
         twist_now = self._vision_initialized and math.isfinite(m.road_twist_rad_m) and (
             resumed or (defer and t < self._roll_hole_until))
-        if resumed and v > 1.0 and m.roll_lookahead_m > 0.0:
-            self._roll_hole_until = t + m.roll_lookahead_m / v
+        if resumed:
+            self._roll_hole_until = t + ahead_s
         if twist_now:
             tw_ok = ekf.update_road_twist(m.road_twist_rad_m, m.road_twist_sigma_rad_m, m.roll_lookahead_m)
             self.counts["twist_used" if tw_ok else "twist_rejected"] += first

@@ -371,10 +371,15 @@ def test_grade_followed_through_a_lane_loss_in_a_sag():
     assert pitch[(t >= 13.0) & (t < 15.0)].max() < 0.3
 
 
-def test_late_vision_results_give_the_same_estimate(drive):
+@pytest.mark.parametrize("lookahead_m, lanes_lost_s", [(0.0, None), (12.0, (6.0, 9.0))])
+def test_late_vision_results_give_the_same_estimate(drive, lookahead_m, lanes_lost_s):
     """Vision results arriving 45 ms late (processing latency) are applied at their capture
-    time by rolling back and re-propagating: the estimate equals the in-time one."""
+    time by rolling back and re-propagating: the estimate equals the in-time one; also with the
+    rolls deferred by a 12 m lookahead and the lanes gone for 3 s (the first frame back applied
+    at capture, the twists of the next L / v too)."""
     imu, vis = drive.imu.iloc[:1500], drive.vision[drive.vision["t_s"] < 14.9]
+    if lanes_lost_s is not None:
+        vis = vis[(vis["t_s"] < lanes_lost_s[0]) | (vis["t_s"] >= lanes_lost_s[1])]
 
     def run(delay_s):
         s = FusionStream(drive.lever_arm_m, options=FusionOptions(history_s=0.5))
@@ -383,7 +388,7 @@ def test_late_vision_results_give_the_same_estimate(drive):
             while pending and pending[0].t_s + delay_s <= row.t_s:
                 p = pending.pop(0)
                 s.add_vision(p.t_s, np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]), np.radians([0.3] * 3),
-                             True, p.curvature_1_m, p.lateral_offset_m)
+                             True, p.curvature_1_m, p.lateral_offset_m, lookahead_m=lookahead_m)
             s.add_imu(row.t_s, [row.gyro_x_rad_s, row.gyro_y_rad_s, row.gyro_z_rad_s],
                       [row.accel_x_m_s2, row.accel_y_m_s2, row.accel_z_m_s2], row.speed_m_s, row.fresh_speed)
         return s
