@@ -851,7 +851,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
             z = twist,   h(x) = bank_rate cos(phi) / v + turned(bank, grade, kappa)
 
         with 1-sigma :meth:`NoiseModel.twist_sigma_rad_m`. The Jacobian has the bank rate and
-        the grade: the grade's part, about ``-grade kappa`` (0.13 deg/s of bank rate at 80 km/h
+        the grade: the grade's part, about ``-grade kappa`` (0.15 deg/s of bank rate at 80 km/h
         on the hill drive's 250 m curve at -3 %), is only as good as the grade, which the
         longitudinal accelerometer bias blurs (0.04 m/s^2 is 0.23 deg); taken as known, that
         error became a bank-rate bias (synthetic 60 s drive with the twist: bank 0.145 -> 0.173

@@ -347,8 +347,8 @@ class FusionStream:
         resumed = t - self._last_vision_t > max(_VISION_GAP_S, ahead_s)
         defer = (self.options.defer_roll and m.roll_lookahead_m > 0.0 and v > 1.0 and self._vision_initialized
                  and not resumed)
-        twist_now = self._vision_initialized and math.isfinite(m.road_twist_rad_m) and (
-            resumed or (defer and t < self._roll_hole_until))
+        twist_now = (self.options.defer_roll and self._vision_initialized and math.isfinite(m.road_twist_rad_m)
+                     and (resumed or (defer and t < self._roll_hole_until)))
         if resumed:
             self._roll_hole_until = t + ahead_s
         if twist_now:

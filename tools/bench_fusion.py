@@ -370,7 +370,7 @@ def main(argv=None) -> int:
             print(f"{name:<26} {'fused, calibrated':<22} {cells}   NEES in band {100 * nees:.1f}%")
     print()
     print(f"{'drive':<26} {'NEES in 95% band fwd':>22} {'smoothed':>10} {'lane loss: max roll err':>24} "
-          f"{'recovery: 2x RMSE':>18} {'0.15 deg':>9}")
+          f"{'recovery: 2x RMSE':>18} {str(BARS['roll']) + ' deg':>9}")
     for name, _, _, nees_f, nees_s, loss_max, recover, recover_bar in rows:
         print(f"{name:<26} {100 * nees_f:21.1f}% {100 * nees_s:9.1f}% {loss_max:21.2f} deg {recover:16.2f} s "
               f"{recover_bar:7.2f} s")
