@@ -356,7 +356,7 @@ class FusionStream:
             self.counts["twist_used" if tw_ok else "twist_rejected"] += first
         rate_ahead = 0.0
         if defer:
-            dt_ahead = m.roll_lookahead_m / v
+            dt_ahead = ahead_s
             # the bank the vision roll says is ahead, against the bank here
             rate_ahead = (ekf.x[S.ROLL_W] - angles[0] - ekf.x[S.BANK]) / dt_ahead
             n = self.options.noise
