@@ -38,6 +38,7 @@ KNOT_M = 4.0
 AHEAD_M = 60.0
 #: Grid of the profile handed to the projection, m.
 _PROFILE_STEP_M = 0.5
+_PROFILE_U = np.arange(0.0, AHEAD_M + 0.5 * _PROFILE_STEP_M, _PROFILE_STEP_M)
 #: Frames farther apart than this (s) give no travel: the map starts again.
 MAX_FRAME_GAP_S = 1.0
 
@@ -51,28 +52,45 @@ def travel_between(speed0_m_s: float, speed1_m_s: float, dt_s: float) -> float |
     return 0.5 * (speed0_m_s + speed1_m_s) * dt_s
 
 
-def _bspline3(t: np.ndarray) -> np.ndarray:
-    """The uniform cubic B-spline centred at 0 (support ``[-2, 2]``, sums to 1 over shifts)."""
-    a = np.abs(t)
-    out = np.where(a < 1.0, (4.0 - 6.0 * a**2 + 3.0 * a**3) / 6.0, 0.0)
-    return np.where((a >= 1.0) & (a < 2.0), (2.0 - a) ** 3 / 6.0, out)
+@nb.njit(cache=True, inline="always")
+def _bspline3(a):  # pragma: no cover (numba)
+    """The uniform cubic B-spline centred at 0 at ``|t| = a`` (support ``[-2, 2]``, sums to 1
+    over shifts)."""
+    if a < 1.0:
+        return (4.0 - 6.0 * a * a + 3.0 * a * a * a) / 6.0
+    if a < 2.0:
+        return (2.0 - a) ** 3 / 6.0
+    return 0.0
+
+
+@nb.njit(cache=True)
+def _bank_change_table(s0, u, k0, c, knot_m):  # pragma: no cover (numba)
+    """The twist ``sum_i c_i B((s0 + u) / knot_m - k0 - i)`` at the stations ``s0 + u`` and its
+    trapezoid integral from ``u[0]``: the bank change table of :meth:`TwistMap.profile`."""
+    n, n_knots = u.size, c.size
+    tau = np.zeros(n)
+    for j in range(n):
+        t = (s0 + u[j]) / knot_m - k0
+        first = max(0, int(math.floor(t)) - 2)
+        for i in range(first, min(n_knots, first + 5)):
+            tau[j] += c[i] * _bspline3(abs(t - i))
+    b = np.zeros(n)
+    for j in range(1, n):
+        b[j] = b[j - 1] + 0.5 * (tau[j] + tau[j - 1]) * (u[j] - u[j - 1])
+    return b
 
 
 @nb.njit(cache=True)
 def _mean_row(s_lo, s_hi, n, k0, n_knots, knot_m):  # pragma: no cover (numba)
     """Mean over ``n`` evenly spaced stations from ``s_lo`` to ``s_hi`` of each knot's B-spline
-    (knot ``k0 + i`` at ``(k0 + i) knot_m``): :func:`_bspline3` summed in a loop."""
+    (knot ``k0 + i`` at ``(k0 + i) knot_m``)."""
     h = np.zeros(n_knots)
     for j in range(n):
         s = s_lo + (s_hi - s_lo) * j / (n - 1)
         t = s / knot_m - k0
         first = max(0, int(math.floor(t)) - 2)
         for i in range(first, min(n_knots, first + 5)):
-            a = abs(t - i)
-            if a < 1.0:
-                h[i] += (4.0 - 6.0 * a * a + 3.0 * a * a * a) / 6.0
-            elif a < 2.0:
-                h[i] += (2.0 - a) ** 3 / 6.0
+            h[i] += _bspline3(abs(t - i))
     return h / n
 
 
@@ -111,9 +129,6 @@ class TwistMap:
         self._table = None
 
     # ---- the window of knots ----
-
-    def _knots(self) -> np.ndarray:
-        return (self.k0 + np.arange(self.c.size)) * KNOT_M
 
     def advance(self, travel_m: float) -> None:
         """The vehicle moved ``travel_m`` along the road: knots that fell behind are dropped,
@@ -174,9 +189,7 @@ class TwistMap:
         if self.n_updates == 0:
             return None
         if self._table is None:
-            u = np.arange(0.0, AHEAD_M + 0.5 * _PROFILE_STEP_M, _PROFILE_STEP_M)
-            tau = _bspline3((self.s_m + u[:, None] - self._knots()[None, :]) / KNOT_M) @ self.c
-            self._table = u, np.concatenate([[0.0], np.cumsum(0.5 * (tau[1:] + tau[:-1]) * np.diff(u))])
+            self._table = _PROFILE_U, _bank_change_table(self.s_m, _PROFILE_U, self.k0, self.c, KNOT_M)
         return RoadTwist(self._table[0], self._table[1], np.asarray(axis, float))
 
     def bank_change(self, u_m: float) -> float:
