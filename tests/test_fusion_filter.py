@@ -318,6 +318,10 @@ def test_lane_loss(drive):
     t = f["t_s"].to_numpy()
     err = np.abs(f["roll_deg"].to_numpy() - np.interp(t, drive.truth["t_s"], drive.truth["roll_deg"]))
     assert err[(t >= 20.0) & (t < 25.0)].max() < 1.0
+    # without vision the roll relative to the road is the bank's guess: its sigma grows (from
+    # 0.19 to 3.8 deg here, measured), and says so to the user
+    sigma = f["roll_sigma_deg"].to_numpy()
+    assert sigma[np.searchsorted(t, 24.9)] > 5.0 * sigma[np.searchsorted(t, 19.9)]
     before = rmse_deg(f, drive.truth, "roll_deg", mask=(t >= 10.0) & (t < 20.0))
     after = rmse_deg(f, drive.truth, "roll_deg", mask=(t >= 27.0) & (t < 35.0))
     assert after < 1.3 * before, (before, after)

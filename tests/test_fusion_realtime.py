@@ -62,7 +62,8 @@ def test_live_fusion_equals_the_offline_run(drive):
         live.push_frame(t, img)
     est = live.estimate()
     assert live.stream.counts["vision_late"] >= 10
-    assert (vision["road_twist_bank_change_deg"] != 0).sum() >= min_twisted
+    if min_twisted:      # the tiny drive's two lines never use the twist map
+        assert (vision["road_twist_bank_change_deg"] != 0).sum() >= min_twisted
     last = offline.iloc[-1]
     assert est.t_s == pytest.approx(last["t_s"], abs=1e-9)
     for name in ("roll", "pitch", "yaw", "bank", "roll_world"):

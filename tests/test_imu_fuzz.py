@@ -29,7 +29,7 @@ def check(path, mapping, db, mount=MOUNT_FRD):
         table, summary = read_log(path, mapping, mount, db=db)
     except ImuError as e:
         text = str(e)
-        assert "\n" not in text and path.name in text or "align_window_s" in text, text
+        assert "\n" not in text and (path.name in text or "align_window_s" in text), text
         return "error"
     assert tuple(table.columns) == COLUMNS
     t = table["t_s"].to_numpy()

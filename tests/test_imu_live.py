@@ -42,13 +42,12 @@ def test_live_virtual_bus_equals_log_path(tmp_path):
     start, done = threading.Event(), threading.Event()
     sender = threading.Thread(target=_sender, args=(tx, msgs, start, done), daemon=True)
     source = LiveSource(rx, sim_mapping(), MOUNT_FRD, poll_s=0.005)
-    samples, latency = [], []
+    samples = []
     try:
         sender.start()
         start.set()
         deadline = time.perf_counter() + 10.0
         for sample in source:
-            latency.append(time.perf_counter() - sample.received_s)
             samples.append(sample)
             if done.is_set() and len(samples) >= len(imu) or time.perf_counter() > deadline:
                 source.stop()
@@ -87,9 +86,7 @@ def test_live_virtual_bus_equals_log_path(tmp_path):
     assert np.array_equal(live["fresh_accel_x"].to_numpy(), expected)
     assert live["fresh_accel_x"].mean() > 0.5  # most sleeps of 350 us stay far below the window
     # The 1 ms arrival-to-yield budget is measured by tools/bench_can.py --live (a wall-clock
-    # figure on a shared machine belongs in a benchmark, not a test); here only that every
-    # sample was yielded after, not before, the frame that completed it.
-    assert np.all(np.array(latency) >= 0.0)
+    # figure on a shared machine belongs in a benchmark, not a test).
     assert source.summary().samples == len(samples)
 
 
