@@ -23,5 +23,8 @@ run: $(VENV)/.installed
 test: $(VENV)/.installed-test
 	$(PY) -m pytest -n 2 -q
 
+bench: $(VENV)/.installed-test
+	$(PY) tools/bench_fusion.py
+
 clean:
 	rm -rf $(VENV) out .pytest_cache
