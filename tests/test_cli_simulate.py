@@ -128,3 +128,9 @@ def test_bad_scenario_is_one_line_naming_the_key(tmp_path, edit, key):
 def test_missing_scenario_file(tmp_path):
     r = vifusion("simulate", tmp_path / "nope.toml", "--out", tmp_path / "out")
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "nope.toml" in r.stderr
+
+
+def test_negative_frame_count_is_one_line(tmp_path):
+    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "out", "--frames", "-1")
+    assert r.returncode == 2 and r.stderr.strip() == "error: --frames must be >= 0, got -1", r.stderr
+    assert not (tmp_path / "out").exists()

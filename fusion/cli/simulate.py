@@ -26,8 +26,10 @@ def run(args: argparse.Namespace) -> int:
     from drivesim.drive import simulate
     from drivesim.scenario import load_scenario
 
+    from ..errors import InputError
+
     if args.frames is not None and args.frames < 0:
-        raise argparse.ArgumentTypeError("--frames must be >= 0")
+        raise InputError(f"--frames must be >= 0, got {args.frames}")
     scenario = load_scenario(args.scenario)
     t0 = time.perf_counter()
     files = simulate(scenario, args.out, progress=not args.quiet, max_frames=args.frames,
