@@ -220,7 +220,7 @@ def parse_video(t: Table) -> VideoTiming:
 
 
 #: Tables whose keys are checked by other modules (``vision.options``, ``fusion.ekf``).
-FREE_TABLES = ("vision", "fusion", "report")
+FREE_TABLES = ("vision", "fusion")
 
 
 def parse_config(data: dict, source: str, base_dir: Path) -> DriveConfig:
@@ -229,6 +229,8 @@ def parse_config(data: dict, source: str, base_dir: Path) -> DriveConfig:
     for name in data:
         if name not in known:
             raise ConfigError(f"{source}: [{name}] is not a known table (known: {', '.join(sorted(known))})")
+        if not isinstance(data[name], dict):
+            raise ConfigError(f"{source}: {name} must be a table ([{name}]), got {data[name]!r}")
     for name in ("camera", "mount"):
         if name not in data:
             raise ConfigError(f"{source}: [{name}] is missing")

@@ -137,7 +137,7 @@ road, whose frame turns with the heading, bank and grade rates: in a vertical cu
 vertical acceleration ``v d(grade)/dt`` is then in it, 0.57 m/s^2 on the hill drive's sag,
 which with the grade's rate left out was read as attitude.)
 
-Noise is written as (std in natural units)^2 (:class:`NoiseModel`).
+Noise is given as 1-sigma values in natural units (:class:`NoiseModel`); the filter squares them.
 """
 
 from __future__ import annotations
@@ -186,7 +186,10 @@ class NoiseModel:
     """Process and measurement noise as 1-sigma values in natural units.
 
     Process noise is given as random-walk densities (per sqrt(second)); measurement noise per
-    sample. The filter squares them: ``Q = sigma**2 * dt``, ``R = sigma**2``.
+    sample. The filter squares them: ``Q = sigma**2 * dt``, ``R = sigma**2``; except the bank and
+    grade rates, first-order Gauss-Markov processes whose 1-sigma is the stationary one (``Q =
+    2 sigma**2 dt / tau``), and the gyro's white noise, which enters the attitude integrated
+    over the interval (``sigma**2 dt**2``).
     """
 
     gyro_noise_rad_s: float = math.radians(0.05)           # white noise of one gyro sample

@@ -2,7 +2,8 @@
 
 :class:`FusionStream` is what the prototype embeds and what ``vifusion run`` feeds in time
 order. Each IMU sample propagates the filter from the previous sample with the mean of the
-two gyro readings, then applies the gravity reference and, when fresh, the wheel speed. A
+two gyro readings, then applies the wheel speed when fresh and (every ``gravity_every``-th
+sample, once a wheel speed has come) the gravity reference. A
 vision result at a time between two IMU samples is applied at its own time: the filter is
 propagated to it, updated, and propagated on. A result that arrives late (the vision takes
 longer than an IMU interval, or frames come out of order) rolls the filter back to the stored

@@ -255,3 +255,28 @@ def test_vision_command_can_log_without_the_wheel_speed(copy, tmp_path):
                  "--can", next(copy.glob("can.*")), "--out", tmp_path / "v.csv", "--quiet")
     one_line_error(r)
     assert not (tmp_path / "v.csv").exists()
+
+
+def test_out_folder_with_other_files_is_left_alone(tmp_path):
+    """--out naming a folder that holds someone's files: a one-line error, nothing deleted; a
+    file as --out likewise (a review found both: the folder was emptied, the file a traceback)."""
+    out = tmp_path / "thesis"
+    out.mkdir()
+    (out / "chapter1.tex").write_text("x")
+    r = vifusion("run", "--out", out, "--quiet")
+    assert r.returncode == 2 and r.stderr.startswith("error: ") and "chapter1.tex" in r.stderr, r.stderr
+    assert (out / "chapter1.tex").read_text() == "x" and not (tmp_path / "thesis.partial").exists()
+    f = tmp_path / "f"
+    f.write_text("x")
+    r = vifusion("run", "--out", f, "--quiet")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "is a file" in r.stderr, r.stderr
+
+
+def test_a_table_given_as_a_value_is_a_config_error(tmp_path):
+    from fusion.config import load_config
+    from fusion.errors import ConfigError
+
+    p = tmp_path / "config.toml"
+    p.write_text('fusion = 3\n[camera]\nwidth = 640\n[mount]\nheight_m = 1.1\n')
+    with pytest.raises(ConfigError, match="fusion must be a table"):
+        load_config(p)

@@ -44,7 +44,8 @@ __all__ = ["main", "USER_ERRORS"]
 SUBCOMMANDS = ("run", "campaign", "vision", "can", "simulate")
 
 #: Exceptions that mean bad input rather than a bug: reported in one line, exit status 2.
-USER_ERRORS = (FusionError, ImuError, VisionError, FileNotFoundError, PermissionError, IsADirectoryError)
+USER_ERRORS = (FusionError, ImuError, VisionError, FileNotFoundError, PermissionError, IsADirectoryError,
+               NotADirectoryError, FileExistsError)
 
 
 def build_parser() -> argparse.ArgumentParser:

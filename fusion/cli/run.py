@@ -110,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     truth = read_truth(files.truth)
     imu_truth = read_truth(files.imu_truth)
     out, tmp = args.out, args.out.with_name(args.out.name + ".partial")
+    _check_out(out)
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
@@ -209,6 +210,24 @@ def _count_frames(video: Path) -> int:
     from vision.video import count_frames
 
     return count_frames(video)
+
+
+#: What a run writes into its ``--out`` folder: an existing folder holding only these is replaced.
+RUN_OUTPUTS = frozenset({"vision.csv", "fused.csv", "calibration.toml", "report"})
+
+
+def _check_out(out: Path) -> None:
+    """``--out`` must be new, or a folder an earlier run wrote (replaced at the end): a folder
+    with anything else in it is left alone, not emptied."""
+    from ..errors import InputError
+
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is a file, not a folder")
+    if out.is_dir():
+        other = sorted(p.name for p in out.iterdir() if p.name not in RUN_OUTPUTS)
+        if other:
+            raise InputError(f"--out {out} holds files a run did not write ({', '.join(other[:3])}"
+                             f"{', ...' if len(other) > 3 else ''}): give a new or empty folder")
 
 
 def _write_csv(df, path: Path) -> None:

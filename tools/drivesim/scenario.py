@@ -2,8 +2,8 @@
 
 A scenario uses the contract's ``[camera]``, ``[mount]``, ``[road]`` and ``[imu]`` keys
 (``[camera]`` may give ``hfov_deg`` instead of ``fx``) and adds what only a simulator needs.
-Every key, its unit and default is listed in the README ("Scenario files"); an unknown or
-badly typed key is a one-line error naming it.
+Every key is listed in the README ("Scenario files"; units are in the names, defaults in
+:func:`parse_scenario`); an unknown or badly typed key is a one-line error naming it.
 """
 
 from __future__ import annotations
