@@ -109,7 +109,20 @@ def read_truth(path: Path | None) -> pd.DataFrame | None:
         raise InputError(f"{path}: not a CSV file ({' '.join(str(e).split())})") from None
     if "t_s" not in df.columns:
         raise InputError(f"{path}: no t_s column")
+    t = pd.to_numeric(df["t_s"], errors="coerce").to_numpy(dtype=float)
+    if len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise InputError(f"{path}: t_s must hold two or more finite, increasing times")
     return df
+
+
+def check_truth_overlap(truth: pd.DataFrame, imu_t: np.ndarray, truth_name, log_name) -> None:
+    """An error when the truth's times miss the IMU samples' (a truth file of another drive, or
+    on another clock): its RMSE would be NaN."""
+    t = truth["t_s"].to_numpy(dtype=float)
+    lo, hi = max(t[0], imu_t[0]), min(t[-1], imu_t[-1])
+    if hi <= lo:
+        raise InputError(f"no overlap between the truth's times ({t[0]:.3f} .. {t[-1]:.3f} s, {truth_name}) "
+                         f"and the CAN log's IMU samples ({imu_t[0]:.3f} .. {imu_t[-1]:.3f} s, {log_name})")
 
 
 def check_overlap(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: str, log_name: str) -> tuple[float, float]:

@@ -38,25 +38,27 @@ class RunSettings:
     smooth: bool = False
 
 
-# key -> (NoiseModel field, converter from the file's unit)
+# key -> (NoiseModel field, converter from the file's unit, largest value accepted). The limits
+# are far beyond any vehicle's (they keep a typo such as 1e300 from overflowing the filter's
+# covariance into NaN estimates, which a review found written as valid).
 _NOISE_KEYS = {
-    "gyro_noise_deg_s": ("gyro_noise_rad_s", math.radians),
-    "gyro_bias_walk_deg_s_sqrt_s": ("gyro_bias_walk_rad_s_sqrt_s", math.radians),
-    "accel_bias_walk_m_s2_sqrt_s": ("accel_bias_walk_m_s2_sqrt_s", float),
-    "speed_noise_m_s": ("speed_meas_m_s", float),
-    "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians),
-    "bank_rate_deg_s": ("bank_rate_rad_s", math.radians),
-    "bank_rate_tau_s": ("bank_rate_tau_s", float),
-    "bank_rate_preview_floor_deg_s": ("bank_rate_preview_floor_rad_s", math.radians),
-    "bank_rate_preview_gain": ("bank_rate_preview_gain", float),
-    "grade_walk_deg_sqrt_s": ("grade_walk_rad_sqrt_s", math.radians),
-    "grade_rate_deg_s": ("grade_rate_rad_s", math.radians),
-    "grade_rate_tau_s": ("grade_rate_tau_s", float),
-    "longitudinal_jerk_m_s3": ("accel_x_walk_m_s2_sqrt_s", float),
-    "vision_sigma_scale": ("vision_sigma_scale", float),
-    "vision_sigma_floor_deg": ("vision_sigma_floor_rad", math.radians),
-    "vision_road_model_error": ("vision_road_model_error", float),
-    "gate_probability": ("gate_probability", float),
+    "gyro_noise_deg_s": ("gyro_noise_rad_s", math.radians, 100.0),
+    "gyro_bias_walk_deg_s_sqrt_s": ("gyro_bias_walk_rad_s_sqrt_s", math.radians, 10.0),
+    "accel_bias_walk_m_s2_sqrt_s": ("accel_bias_walk_m_s2_sqrt_s", float, 10.0),
+    "speed_noise_m_s": ("speed_meas_m_s", float, 100.0),
+    "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians, 100.0),
+    "bank_rate_deg_s": ("bank_rate_rad_s", math.radians, 100.0),
+    "bank_rate_tau_s": ("bank_rate_tau_s", float, 1000.0),
+    "bank_rate_preview_floor_deg_s": ("bank_rate_preview_floor_rad_s", math.radians, 100.0),
+    "bank_rate_preview_gain": ("bank_rate_preview_gain", float, 100.0),
+    "grade_walk_deg_sqrt_s": ("grade_walk_rad_sqrt_s", math.radians, 100.0),
+    "grade_rate_deg_s": ("grade_rate_rad_s", math.radians, 100.0),
+    "grade_rate_tau_s": ("grade_rate_tau_s", float, 1000.0),
+    "longitudinal_jerk_m_s3": ("accel_x_walk_m_s2_sqrt_s", float, 1000.0),
+    "vision_sigma_scale": ("vision_sigma_scale", float, 1000.0),
+    "vision_sigma_floor_deg": ("vision_sigma_floor_rad", math.radians, 90.0),
+    "vision_road_model_error": ("vision_road_model_error", float, 100.0),
+    "gate_probability": ("gate_probability", float, 0.999999),
 }
 
 
@@ -65,24 +67,23 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
     t = Table(table or {}, "fusion", source)
     noise = NoiseModel()
     changes = {}
-    for key, (name, conv) in _NOISE_KEYS.items():
+    for key, (name, conv, hi) in _NOISE_KEYS.items():
         if t.has(key):
             lo = 0.5 if key == "gate_probability" else 0.01 if key.endswith("_tau_s") else 0.0   # a time constant divides
-            hi = None if key != "gate_probability" else 0.999999
             changes[name] = conv(t.get(key, "float", min=lo, max=hi))
-    for key, name, conv in (("accel_bias_sigma_m_s2", "init_accel_bias_m_s2", float),
-                            ("gyro_bias_sigma_deg_s", "init_gyro_bias_rad_s", math.radians)):
+    for key, name, conv, hi in (("accel_bias_sigma_m_s2", "init_accel_bias_m_s2", float, 10.0),
+                                ("gyro_bias_sigma_deg_s", "init_gyro_bias_rad_s", math.radians, 100.0)):
         if t.has(key):   # one value, or one per axis
             if isinstance(t.data[key], list):
-                changes[name] = tuple(conv(v) for v in t.get(key, "floats", length=3, min=0.0))
+                changes[name] = tuple(conv(v) for v in t.get(key, "floats", length=3, min=0.0, max=hi))
             else:
-                changes[name] = conv(t.get(key, "float", min=0.0))
-    for key, name, conv in (("accel_bias_m_s2", "accel_bias_prior_m_s2", float),
-                            ("gyro_bias_deg_s", "gyro_bias_prior_rad_s", math.radians)):
+                changes[name] = conv(t.get(key, "float", min=0.0, max=hi))
+    for key, name, conv, hi in (("accel_bias_m_s2", "accel_bias_prior_m_s2", float, 10.0),
+                                ("gyro_bias_deg_s", "gyro_bias_prior_rad_s", math.radians, 100.0)):
         if t.has(key):
-            changes[name] = tuple(conv(v) for v in t.get(key, "floats", length=3))
+            changes[name] = tuple(conv(v) for v in t.get(key, "floats", length=3, min=-hi, max=hi))
     if t.has("accel_noise_m_s2"):
-        changes["accel_meas_m_s2"] = t.get("accel_noise_m_s2", "floats", length=3, min=1e-6)
+        changes["accel_meas_m_s2"] = t.get("accel_noise_m_s2", "floats", length=3, min=1e-6, max=100.0)
     noise = replace(noise, **changes)
     opts = FusionOptions(
         noise=noise,

@@ -200,8 +200,10 @@ def last_speed(speed_t_s: np.ndarray, speed_m_s: np.ndarray, t_s, max_age_s: flo
     ts, v = np.asarray(speed_t_s, dtype=float), np.asarray(speed_m_s, dtype=float)
     ok = np.isfinite(v)
     ts, v = ts[ok], v[ok]
-    k = np.searchsorted(ts, t_s, side="right") - 1
     out = np.full(t_s.size, math.nan)
+    if ts.size == 0:
+        return out
+    k = np.searchsorted(ts, t_s, side="right") - 1
     have = k >= 0
     out[have] = v[k[have]]
     out[have & (t_s - ts[np.maximum(k, 0)] > max_age_s)] = math.nan

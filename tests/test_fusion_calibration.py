@@ -86,3 +86,13 @@ def _fused_with(cal):
         row[f"accel_bias_{a}_m_s2"] = cal["accel_bias_m_s2"][i]
         row[f"accel_bias_{a}_sigma_m_s2"] = cal["accel_bias_sigma_m_s2"][i]
     return pd.DataFrame([row])
+
+
+@pytest.mark.parametrize("table, key", [({"gyro_noise_deg_s": 1e300}, "gyro_noise_deg_s"),
+                                        ({"gyro_bias_sigma_deg_s": 1e200}, "gyro_bias_sigma_deg_s"),
+                                        ({"gyro_bias_sigma_deg_s": [0.1, 0.1, 1e9]}, "gyro_bias_sigma_deg_s"),
+                                        ({"accel_bias_m_s2": [0.0, 0.0, -50.0]}, "accel_bias_m_s2")])
+def test_noise_values_beyond_any_vehicle_are_config_errors(table, key):
+    """A typo of 1e300 once overflowed the covariance: NaN estimates written as valid."""
+    with pytest.raises(ConfigError, match=f"{key} must be within"):
+        fusion_options_from_table(table, "c.toml")

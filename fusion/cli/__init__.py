@@ -48,8 +48,16 @@ USER_ERRORS = (FusionError, ImuError, VisionError, FileNotFoundError, Permission
                NotADirectoryError, FileExistsError)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors in the program's form: one line ``error: ...`` (naming the
+    command's ``--help``), exit status 2, instead of the usage block before it."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="vifusion",
         description="Vehicle attitude and road bank angle from a camera fused with a CAN-bus IMU.",
     )
@@ -65,6 +73,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else argv
     args = parser.parse_args(argv)
+    if not args.debug:
+        # FFmpeg inside OpenCV prints its own line for a video it cannot open ("moov atom not
+        # found") before the one-line error this program gives for it
+        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     try:
         return int(args.func(args) or 0)
     except USER_ERRORS as e:

@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..calibration import calibration_table, read_calibration, write_calibration
     from ..config import load_config
-    from ..drive import check_overlap, read_frame_times, read_truth
+    from ..drive import check_overlap, check_truth_overlap, read_frame_times, read_truth
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
     from ..pipeline import frame_speeds, fuse, plain_bank
@@ -126,8 +126,11 @@ def run(args: argparse.Namespace) -> int:
                          "accel_z_m_s2", "speed_m_s") if c not in unavailable and not np.isfinite(imu[c]).any()]
     missing = sorted((unavailable | set(never)) & essential)
     if missing:
+        channel = missing[0].removesuffix("_rad_s").removesuffix("_m_s2").removesuffix("_m_s")
         raise InputError(f"{files.can_log}: IMU channel {missing[0]} never seen (needed by the filter; "
-                         f"mapped as {mapping.signals.get(missing[0].split('_')[0] + '_' + missing[0].split('_')[1], '?')})")
+                         f"mapped as {mapping.signals.get(channel, '?')})")
+    if truth is not None:
+        check_truth_overlap(truth, imu["t_s"].to_numpy(), files.truth, files.can_log)
     has_pitch_rate = "gyro_y_rad_s" not in unavailable and "gyro_y_rad_s" not in never
     if not has_pitch_rate:
         warnings.append("no pitch-rate channel: pitch rate reconstructed as yaw rate * tan(roll)")
@@ -151,6 +154,12 @@ def run(args: argparse.Namespace) -> int:
     if vstats.get("frames_missing"):
         warnings.append(f"{files.video}: {vstats['frames_read']} frames could be read, frames.csv lists "
                         f"{len(frames)}; the last {vstats['frames_missing']} were not processed")
+    n_valid = int(vision["valid"].sum()) if len(vision) else 0
+    if n_valid < VISION_VALID_WARN * len(vision) or not len(vision):
+        reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts() if len(vision) else None
+        why = f" (mostly: {reasons.index[0]})" if reasons is not None and len(reasons) else ""
+        warnings.append(f"vision valid on {n_valid} of {len(vision)} frames{why}: the fused angles relative to "
+                        "the road rest on the IMU and the last bank estimate elsewhere")
     _write_csv(vision, tmp / "vision.csv")
 
     time_offset = None
@@ -211,6 +220,10 @@ def _count_frames(video: Path) -> int:
 
     return count_frames(video)
 
+
+#: Share of valid vision frames under which the run warns (lanes lost, a camera config that
+#: does not fit the video).
+VISION_VALID_WARN = 0.5
 
 #: What a run writes into its ``--out`` folder: an existing folder holding only these is replaced.
 RUN_OUTPUTS = frozenset({"vision.csv", "fused.csv", "calibration.toml", "report"})
