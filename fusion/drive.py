@@ -69,8 +69,8 @@ def find_drive_files(root: str | Path) -> DriveFiles:
 def read_frame_times(frames_csv: Path | None, timing: VideoTiming, n_frames: int | None = None) -> pd.DataFrame:
     """``frame,t_s`` of every frame, on the CAN log's clock.
 
-    From ``frames.csv`` when given (checked: the two columns, integer frames, finite strictly
-    increasing times), else ``t = start_s + frame / fps`` for ``n_frames`` frames.
+    From ``frames.csv`` when given (checked: the two columns, integer frames and finite times,
+    both strictly increasing), else ``t = start_s + frame / fps`` for ``n_frames`` frames.
     """
     if frames_csv is None:
         if n_frames is None:
@@ -96,7 +96,11 @@ def read_frame_times(frames_csv: Path | None, timing: VideoTiming, n_frames: int
         raise InputError(f"{frames_csv}: frame numbers must be integers >= 0")
     if np.any(np.diff(t) <= 0):
         i = int(np.flatnonzero(np.diff(t) <= 0)[0])
-        raise InputError(f"{frames_csv}: t_s does not increase at row {i + 3} ({t[i]!r} then {t[i + 1]!r})")
+        raise InputError(f"{frames_csv}: t_s does not increase at row {i + 3} ({float(t[i])!r} then {float(t[i + 1])!r})")
+    if np.any(np.diff(frame) <= 0):
+        i = int(np.flatnonzero(np.diff(frame) <= 0)[0])
+        raise InputError(f"{frames_csv}: frame numbers must increase (row {i + 3}: {int(frame[i])} then "
+                         f"{int(frame[i + 1])}), one row per video frame")
     return pd.DataFrame({"frame": frame.astype(int), "t_s": t})
 
 

@@ -94,6 +94,7 @@ class _Lines:
         self.replay: deque[str] = deque()
         self.recording = True
         self.recorded: list[str] = []
+        self.last = ""                  # the last line that was not blank
 
     def __iter__(self) -> "_Lines":
         return self
@@ -106,6 +107,8 @@ class _Lines:
         self.chars += len(line)
         if self.recording:
             self.recorded.append(line)
+        if line.strip():
+            self.last = line
         return line
 
     def close(self) -> None:  # python-can's reader.stop() closes its file; we close the real one
@@ -212,8 +215,10 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                     first = False
                     yield msg
                 yield from it
+                _check_asc_end(feed, header, state)
                 return
             except StopIteration:
+                _check_asc_end(feed, header, state)
                 return
             except (EOFError, OSError, gzip.BadGzipFile) as e:  # the file itself broke off
                 state.complete = False
@@ -239,6 +244,15 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                                       f"{type(e).__name__}: {e}") from None
                 last_fail = feed.line_no
                 feed.replay = deque(header)
+
+
+def _check_asc_end(feed: _Lines, header: list[str], state: ReadState) -> None:
+    """A Vector ASC log that opened a ``Begin TriggerBlock`` and does not close it broke off
+    (python-can's writer and CANoe close it when the recording ends): marked incomplete."""
+    if state.fmt == ".asc" and any(h.lstrip().lower().startswith("begin triggerblock") for h in header) \
+            and not feed.last.lstrip().lower().startswith("end triggerblock"):
+        state.complete = False
+        state.problem(f"line {feed.line_no}: no 'End TriggerBlock' at the end: truncated")
 
 
 def _iter_binary(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[can.Message]:

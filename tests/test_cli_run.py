@@ -188,7 +188,7 @@ def test_video_shorter_than_frames_csv_is_a_warning(copy, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "warning:" in r.stderr and "frames" in r.stderr
     summary = json.loads((out / "report" / "summary.json").read_text())
-    assert any("10 were not processed" in w for w in summary["warnings"])
+    assert any("10 of the" in w for w in summary["warnings"])
 
 
 def test_frames_csv_not_increasing(copy, tmp_path):
@@ -319,3 +319,10 @@ def test_bad_arguments_and_an_unreadable_video_are_one_line(copy, tmp_path):
     video = copy / "video.mp4"
     video.write_bytes(video.read_bytes()[:5000])
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "video.mp4")
+
+
+def test_frames_csv_with_a_frame_twice(copy, tmp_path):
+    frames = pd.read_csv(copy / "frames.csv")
+    frames.loc[5, "frame"] = frames.loc[4, "frame"]
+    frames.to_csv(copy / "frames.csv", index=False, float_format="%.6f")
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "frames.csv", "frame numbers must increase")

@@ -265,3 +265,19 @@ def test_ALIGN_WINDOW_TOO_LONG(tmp_path, clean):
     path = _write(msgs, tmp_path / "x.blf")
     with pytest.raises(ImuConfigError, match=r"align_window_s = 0.006 s is not less than half the IMU_RATE period"):
         read_log(path, sim_mapping(align_window_s=0.006), MOUNT_FRD)
+
+
+def test_TRUNCATED_ASC_is_marked_incomplete(tmp_path, clean):
+    """A text log cut in the middle parses to the end of what is left; python-can's writer (and
+    CANoe) close the trigger block, so a block left open says the file broke off (a review found
+    a half ASC log read as complete: a run covered 6 of its 12 s without a warning)."""
+    imu, offset, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / "x.asc")
+    ref, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert summary.complete and path.read_text().rstrip().endswith("End TriggerBlock")
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(lines[: len(lines) // 2]))
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert not summary.complete and not table.attrs["complete"]
+    assert any("End TriggerBlock" in p and "truncated" in p for p in summary.problems)
+    assert 0 < len(table) < len(ref)

@@ -121,3 +121,21 @@ def test_config_with_only_imu_and_can(tmp_path, drive, capsys):
     no_can.write_text('[imu]\naxes = ["x", "y", "z"]\n')
     msg = _run_error(["can", str(log), "--config", str(no_can), "--out", str(out), "--quiet"], capsys)
     assert "[can] is missing" in msg
+
+
+def test_a_channel_never_sent_is_a_warning(tmp_path, drive, capsys):
+    """A mapped signal whose message never comes: the column is all NaN and the command says so
+    (a review found it silent)."""
+    _, _, log = drive
+    dbc = tmp_path / "aux.dbc"
+    text = DBC_PATH.read_text()
+    first_bo = text.index("BO_ ")
+    dbc.write_text(text[:first_bo] + 'BO_ 1793 AUX: 8 IMU\n SG_ AccY : 0|16@1- (0.001,0) [-32|32] "m/s2" ECU\n\n'
+                   + text[first_bo:])
+    cfg = _config(tmp_path, dbc=dbc)
+    cfg.write_text("\n".join('accel_y = "AUX.AccY"' if line.startswith("accel_y =") else line
+                             for line in cfg.read_text().splitlines()))
+    out = tmp_path / "imu.csv"
+    assert main(["can", str(log), "--config", str(cfg), "--out", str(out), "--quiet"]) == 0
+    assert "accel_y_m_s2 never seen" in capsys.readouterr().err
+    assert pd.read_csv(out)["accel_y_m_s2"].isna().all()

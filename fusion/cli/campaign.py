@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from . import USER_ERRORS, _one_line
     from . import run as run_cmd
 
-    names = [d.name for d in args.drives]
+    names = [d.resolve().name for d in args.drives]      # '.' names its folder
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         from ..errors import InputError
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     calibration = args.calibration
     rows = []
     for drive in args.drives:
-        out = args.out / drive.name
+        out = args.out / drive.resolve().name
         run_args = argparse.Namespace(
             drive=drive, video=None, frames=None, can=None, dbc=None, config=None, truth=None, out=out,
             smooth=args.smooth, calibration=calibration, estimate_time_offset=False, debug_video=None,

@@ -152,8 +152,8 @@ def run(args: argparse.Namespace) -> int:
                                     workers=args.workers or default_workers())
     timings["vision"] = time.perf_counter() - t0
     if vstats.get("frames_missing"):
-        warnings.append(f"{files.video}: {vstats['frames_read']} frames could be read, frames.csv lists "
-                        f"{len(frames)}; the last {vstats['frames_missing']} were not processed")
+        warnings.append(f"{files.video}: {vstats['frames_read']} frames could be read; {vstats['frames_missing']} of "
+                        f"the {len(frames)} frames that frames.csv lists are not among them (not processed)")
     n_valid = int(vision["valid"].sum()) if len(vision) else 0
     if n_valid < VISION_VALID_WARN * len(vision) or not len(vision):
         reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts() if len(vision) else None
