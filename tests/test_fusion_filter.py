@@ -405,12 +405,27 @@ def test_late_vision_results_give_the_same_estimate(drive, lookahead_m, lanes_lo
 
 def test_imu_without_pitch_rate():
     """Bosch MM5.10-like IMU (no pitch-rate channel): the kinematic reconstruction q = r tan(roll)
-    keeps roll and pitch relative to the road within 0.25 deg RMS."""
+    carries roll and pitch. Measured on this drive (0.3 deg vision): roll 0.172, pitch 0.246,
+    bank 0.175 deg (with the pitch gyro 0.172 / 0.075 / 0.174): the pitch follows the vision's
+    0.3 deg noise, as no gyro sees the rider's 0.3 deg pitching at 1.3 Hz. Bars: the issue's
+    0.3 deg for the bank; roll and pitch 0.25, under the vision's 0.3."""
     d = synth_drive("banked_curves_60s.toml", vision_sigma_deg=VISION_SIGMA_DEG, pitch_rate=False)
     f = fuse(d.imu, d.vision, lever_arm_m=d.lever_arm_m, has_pitch_rate=False).fused
     assert rmse_deg(f, d.truth, "roll_deg") < 0.25
     assert rmse_deg(f, d.truth, "pitch_deg") < 0.25
-    assert rmse_deg(f, d.truth, "bank_deg") < 0.35
+    assert rmse_deg(f, d.truth, "bank_deg") < 0.3
+
+
+def test_pitching_without_a_pitch_gyro_does_not_bias_the_bank():
+    """A steady 20 s turn (left, 5 deg bank, 0.05 deg vision) with the simulator's pitching of
+    0.3 deg at 1.3 Hz and no pitch gyro: unmeasured, the pitch rate moves the lateral specific
+    force by v sin(roll_rel) dq (0.17 m/s^2 here), which the filter read as lateral accelerometer
+    bias and world roll: bank 0.299 deg RMS, drifting through the turn (0.447 with the drive's
+    datasheet noise). With that term in the accelerometer's noise (2 deg/s of pitch rate,
+    NoiseModel.no_pitch_rate_sigma_rad_s): 0.167 (with the pitch gyro 0.044). The bar lies between."""
+    d = synth_drive("banked_curve_left_5deg.toml", vision_sigma_deg=0.05, pitch_rate=False)
+    f = fuse(d.imu, d.vision, lever_arm_m=d.lever_arm_m, has_pitch_rate=False).fused
+    assert rmse_deg(f, d.truth, "bank_deg") < 0.22
 
 
 @pytest.mark.parametrize("offset_s", [0.04, -0.1])

@@ -15,6 +15,8 @@ runs the whole ``vifusion run`` as a user would (a subprocess, timed), then prin
   biases) that the 60 s drive's run wrote (``vifusion run --calibration``);
 * how the vision's errors follow the road's twist in superelevation runoffs, measured against
   the model the estimator reports to the filter (``roll_lookahead_m``, ``*_per_twist_m``);
+* without a pitch gyro (MM5.10: ``q = r tan(roll)``): the forward filter on the same vision and
+  CAN log with the pitch-rate channel left out, RMSE and the lane loss's worst roll error;
 * the share of samples whose NEES of (roll, pitch, yaw, bank) lies in its 95 % chi-square band;
 * lane loss: vision removed for 5 s, the worst roll error meanwhile and the time after the
   lanes return until the roll error is back within the drive's own RMSE band;
@@ -118,6 +120,33 @@ def lane_loss(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[float, float
         return float(t[bad[-1]] - back) if len(bad) else 0.0
 
     return float(np.nanmax(during)), recovery(band), recovery(BARS["roll"])
+
+
+def without_pitch_gyro(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[dict, float]:
+    """RMSE after 2 s of the forward filter on the run's vision and the drive's CAN log with the
+    pitch-rate channel left out, and its worst roll error with the lanes lost as in
+    :func:`lane_loss`."""
+    from fusion.config import load_config
+    from fusion.metrics import interp_truth, rmse_table
+    from fusion.options import fusion_options_from_table
+    from fusion.pipeline import fuse
+    from imu import read_log
+
+    cfg = load_config(drive / "config.toml")
+    opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
+    imu, _ = read_log(next(p for p in drive.glob("can.*")), cfg.can, cfg.imu)
+    vision = pd.read_csv(run_dir / "vision.csv")
+    truth = pd.read_csv(drive / "truth.csv")
+    t0 = float(vision["t_s"].iloc[0])
+    f = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts, has_pitch_rate=False).fused
+    acc = rmse_table(f, truth, t0 + 2.0, angles=("roll", "pitch", "yaw", "bank"))
+    v = vision.copy()
+    v.loc[(v["t_s"] >= t0 + t_loss_s) & (v["t_s"] < t0 + t_loss_s + 5.0), "valid"] = 0
+    f = fuse(imu, v, lever_arm_m=cfg.imu.position_m, options=opts, has_pitch_rate=False).fused
+    t = f["t_s"].to_numpy()
+    during = (t >= t0 + t_loss_s) & (t < t0 + t_loss_s + 5.0)
+    err = np.abs(f["roll_deg"].to_numpy() - interp_truth(truth, t)["roll_deg"].to_numpy())[during]
+    return acc, float(np.nanmax(err))
 
 
 def road_in_view(drive: Path, run_dir: Path) -> dict:
@@ -322,7 +351,7 @@ def main(argv=None) -> int:
     names = QUICK if args.quick else DRIVES
     from fusion.pipeline import FusionOptions
 
-    rows, speed_rows, view_rows, sigma_rows = [], [], [], []
+    rows, speed_rows, view_rows, sigma_rows, no_q_rows = [], [], [], [], []
     for name in names:
         drive = cached_full_drive(name)
         out = drive.parent / (drive.name + "-run")
@@ -333,6 +362,7 @@ def main(argv=None) -> int:
         rows.append((name, acc, summ_s["rmse_deg"]["fused"], summ["consistency"]["fraction_inside"],
                      summ_s["consistency"]["fraction_inside"], loss_max, recover, recover_bar))
         view_rows.append((name, road_in_view(drive, out)))
+        no_q_rows.append((name, *without_pitch_gyro(drive, out, t_loss_s=8.0)))
         sigma_rows.append((name, vision_sigmas(drive, out, FusionOptions().noise)))
         dur = summ["duration_s"]
         tm = summ["timings_s"]
@@ -368,6 +398,11 @@ def main(argv=None) -> int:
         for name, vals, nees in campaign_rows:
             cells = " ".join(f"{vals[a]:7.3f}" for a in ("roll", "pitch", "yaw", "bank"))
             print(f"{name:<26} {'fused, calibrated':<22} {cells}   NEES in band {100 * nees:.1f}%")
+    print()
+    print("Without a pitch gyro (MM5.10: q = r tan(roll)), forward filter, the same vision and CAN log")
+    for name, vals, loss in no_q_rows:
+        cells = " ".join(f"{vals[a]:7.3f}" for a in ("roll", "pitch", "yaw", "bank"))
+        print(f"{name:<26} {'fused, no pitch gyro':<22} {cells}   lane loss: max roll err {loss:.2f} deg")
     print()
     print(f"{'drive':<26} {'NEES in 95% band fwd':>22} {'smoothed':>10} {'lane loss: max roll err':>24} "
           f"{'recovery: 2x RMSE':>18} {str(BARS['roll']) + ' deg':>9}")
