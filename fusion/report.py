@@ -227,6 +227,8 @@ def _table_html(summary: dict) -> str:
             rows.append(f"<tr><td>{label} [{unit}]</td>{cells}</tr>")
         rows.append("</table>")
     rows.append("<h2>Run</h2><table>")
+    rows.append("<tr><td>estimate</td><td>" + ("forward filter and RTS smoother (offline)" if summary.get("smoothed")
+                                             else "forward filter") + "</td></tr>")
     for k, v in summary.get("counts", {}).items():
         rows.append(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>")
     for k, v in summary.get("timings_s", {}).items():

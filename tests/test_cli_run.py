@@ -2,6 +2,7 @@
 line, exit status 2, no output folder that looks complete; or a warning when it can go on."""
 
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -76,13 +77,20 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
 
 
 def test_run_without_inputs_processes_the_bundled_sample(tmp_path):
+    """The bundled 12 s drive (640x360, a right-hand runoff to 6 deg) against its truth.csv.
+    Measured: fused roll 0.211, yaw 0.277, bank 0.268 deg RMS after 2 s; the vision alone 0.557
+    roll, 0.433 yaw; the plain IMU-minus-vision bank 0.968. Bars: the issue's 0.3 deg for the
+    bank, 0.3 for roll and yaw (a quarter of the HD drives' resolution: coarser than the
+    bench's), and better than the vision and the plain difference."""
     out = tmp_path / "sample"
-    r = vifusion("run", "--out", out, "--quiet", "--no-report")
+    r = vifusion("run", "--out", out, "--quiet")
     assert r.returncode == 0, r.stderr
     fused = pd.read_csv(out / "fused.csv")
     assert fused["t_s"].iloc[-1] - fused["t_s"].iloc[0] > 11.0
-    # the drive ends in a curve banked 6 deg: the fused bank says so within a degree
-    assert fused["bank_deg"].iloc[-1] == pytest.approx(6.0, abs=1.0)
+    rmse = json.loads((out / "report" / "summary.json").read_text())["rmse_deg"]
+    assert rmse["fused"]["bank"] < 0.3 and rmse["fused"]["roll"] < 0.3 and rmse["fused"]["yaw"] < 0.3, rmse
+    assert rmse["fused"]["roll"] < rmse["vision"]["roll"] and rmse["fused"]["yaw"] < rmse["vision"]["yaw"], rmse
+    assert rmse["fused"]["bank"] < rmse["imu_minus_vision"]["bank"], rmse
 
 
 def test_shipped_sample_drive_is_what_the_simulator_makes(tmp_path):
@@ -326,3 +334,21 @@ def test_frames_csv_with_a_frame_twice(copy, tmp_path):
     frames.loc[5, "frame"] = frames.loc[4, "frame"]
     frames.to_csv(copy / "frames.csv", index=False, float_format="%.6f")
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "frames.csv", "frame numbers must increase")
+
+
+def test_smooth_and_time_offset_estimate_through_the_command(drive, tmp_path):
+    """--smooth and --estimate-time-offset end to end: the summary says the run was smoothed and
+    reports the offset estimate (or why none: the tiny drive has lanes on 11 of 30 frames), and
+    the smoothed table differs from the forward one."""
+    fwd, sm = tmp_path / "fwd", tmp_path / "sm"
+    assert vifusion("run", "--drive", drive, "--out", fwd, "--quiet").returncode == 0
+    r = vifusion("run", "--drive", drive, "--out", sm, "--quiet", "--smooth", "--estimate-time-offset")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((sm / "report" / "summary.json").read_text())
+    assert summary["smoothed"] is True
+    offset = summary["time_offset"]
+    assert offset is not None and ("offset_s" in offset and (math.isfinite(offset["offset_s"]) or offset["reason"]))
+    a, b = pd.read_csv(fwd / "fused.csv"), pd.read_csv(sm / "fused.csv")
+    assert len(a) == len(b) and not np.allclose(a["roll_deg"], b["roll_deg"])
+    html = (sm / "report" / "report.html").read_text()
+    assert "RTS smoother" in html
