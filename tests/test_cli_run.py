@@ -199,11 +199,13 @@ def test_video_shorter_than_frames_csv_is_a_warning(copy, tmp_path):
     assert any("10 of the" in w for w in summary["warnings"])
 
 
-def test_frames_csv_not_increasing(copy, tmp_path):
+@pytest.mark.parametrize("column, words", [("t_s", "t_s does not increase"), ("frame", "frame numbers must increase")])
+def test_frames_csv_not_increasing(copy, tmp_path, column, words):
+    """A time going back, or a frame listed twice."""
     frames = pd.read_csv(copy / "frames.csv")
-    frames.loc[5, "t_s"] = frames.loc[3, "t_s"]
+    frames.loc[5, column] = frames.loc[4, column]
     frames.to_csv(copy / "frames.csv", index=False, float_format="%.6f")
-    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "frames.csv", "increase")
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "frames.csv", words)
 
 
 def test_corrupt_can_log(copy, tmp_path):
@@ -327,13 +329,6 @@ def test_bad_arguments_and_an_unreadable_video_are_one_line(copy, tmp_path):
     video = copy / "video.mp4"
     video.write_bytes(video.read_bytes()[:5000])
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "video.mp4")
-
-
-def test_frames_csv_with_a_frame_twice(copy, tmp_path):
-    frames = pd.read_csv(copy / "frames.csv")
-    frames.loc[5, "frame"] = frames.loc[4, "frame"]
-    frames.to_csv(copy / "frames.csv", index=False, float_format="%.6f")
-    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "frames.csv", "frame numbers must increase")
 
 
 def test_smooth_and_time_offset_estimate_through_the_command(drive, tmp_path):
