@@ -485,11 +485,13 @@ class FusionStream:
 
     def estimate(self) -> Estimate:
         """The latest estimate (after the newest IMU sample)."""
-        return estimate_from(self.t_s, self.ekf.x, self.ekf.P, self.t_s - self._last_vision_t)
+        return estimate_from(self.t_s, self.ekf.x, self.ekf.P, self.t_s - self._last_vision_t,
+                             self.ekf.has_pitch_rate)
 
 
-def estimate_from(t_s: float, x: np.ndarray, P: np.ndarray, vision_age_s: float = math.nan) -> Estimate:
-    """Outputs of state ``x`` with covariance ``P``."""
+def estimate_from(t_s: float, x: np.ndarray, P: np.ndarray, vision_age_s: float = math.nan,
+                  has_pitch_rate: bool = True) -> Estimate:
+    """Outputs of state ``x`` with covariance ``P`` (without a pitch gyro, no bias of it: NaN)."""
     rel = vision_hx(x)
     H = vision_jacobian(x)
     sig = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", H, P, H), 0.0))
@@ -499,5 +501,6 @@ def estimate_from(t_s: float, x: np.ndarray, P: np.ndarray, vision_age_s: float 
         roll_world_rad=x[S.ROLL_W], pitch_world_rad=x[S.PITCH_W], grade_rad=x[S.GRADE],
         roll_sigma_rad=sig[0], pitch_sigma_rad=sig[1], yaw_sigma_rad=sig[2], bank_sigma_rad=d[S.BANK],
         roll_world_sigma_rad=d[S.ROLL_W], pitch_world_sigma_rad=d[S.PITCH_W],
-        gyro_bias_rad_s=tuple(x[S.GYRO_BIAS]), speed_m_s=x[S.SPEED], vision_age_s=vision_age_s,
+        gyro_bias_rad_s=(x[S.GYRO_BIAS_X], x[S.GYRO_BIAS_Y] if has_pitch_rate else math.nan, x[S.GYRO_BIAS_Z]),
+        speed_m_s=x[S.SPEED], vision_age_s=vision_age_s,
     )

@@ -48,6 +48,7 @@ _NOISE_KEYS = {
     "speed_noise_m_s": ("speed_meas_m_s", float, 100.0),
     "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians, 100.0),
     "no_pitch_rate_sigma_deg_s": ("no_pitch_rate_sigma_rad_s", math.radians, 100.0),
+    "no_pitch_rate_tau_s": ("no_pitch_rate_tau_s", float, 10.0),
     "bank_rate_deg_s": ("bank_rate_rad_s", math.radians, 100.0),
     "bank_rate_tau_s": ("bank_rate_tau_s", float, 1000.0),
     "bank_rate_preview_floor_deg_s": ("bank_rate_preview_floor_rad_s", math.radians, 100.0),

@@ -169,6 +169,9 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         X, Pm = xs[at_sample], Ps[at_sample]
     rel_cov = relative_outputs(X, Pm)
     table = outputs_table(t, X, Pm, rel_cov)
+    if not has_pitch_rate:
+        # no pitch gyro, no bias of it: that state is the pitch rate q = r tan(roll) leaves out
+        table["gyro_bias_y_deg_s"] = table["gyro_bias_y_sigma_deg_s"] = np.nan
     counts = dict(stream.counts)
     counts["vision_after_last_imu"] = int(len(vt) - j)
     return FusedRun(table, counts, smooth, rel_cov[1], warnings)

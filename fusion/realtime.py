@@ -102,4 +102,4 @@ class LiveFusion:
         """The IMU biases now, with 1-sigma, as the ``[fusion]`` keys of a calibration: save them
         when the vehicle stops (``fusion.calibration.write_calibration``) and start the next
         drive from them (``[fusion]`` of the config, or ``vifusion run --calibration``)."""
-        return calibration_from_state(self.stream.ekf.x, self.stream.ekf.P)
+        return calibration_from_state(self.stream.ekf.x, self.stream.ekf.P, self.has_pitch_rate)
