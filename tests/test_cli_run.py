@@ -326,6 +326,9 @@ def test_bad_arguments_and_an_unreadable_video_are_one_line(copy, tmp_path):
     the error."""
     one_line_error(vifusion("run", "--workers", "0"), "--workers", "vifusion run --help")
     one_line_error(vifusion("can"), "required")
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "o", "--debug-video", tmp_path / "d.txt"),
+                   "d.txt", ".mp4")
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o.partial").exists()
     video = copy / "video.mp4"
     video.write_bytes(video.read_bytes()[:5000])
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "video.mp4")
@@ -347,3 +350,22 @@ def test_smooth_and_time_offset_estimate_through_the_command(drive, tmp_path):
     assert len(a) == len(b) and not np.allclose(a["roll_deg"], b["roll_deg"])
     html = (sm / "report" / "report.html").read_text()
     assert "RTS smoother" in html
+
+
+def test_a_gap_in_the_can_log_is_a_warning(copy, tmp_path):
+    """0.3 s of the log gone (the logger dropped frames): the run goes on, says where and how
+    long in its warnings, in words."""
+    lines = (copy / "can.asc").read_text().splitlines(keepends=True)
+
+    def t_of(line):
+        try:
+            return float(line.split()[0])
+        except (ValueError, IndexError):
+            return None
+    kept = [ln for ln in lines if not (t_of(ln) is not None and 1.0 <= t_of(ln) < 1.3)]
+    (copy / "can.asc").write_text("".join(kept))
+    out = tmp_path / "out"
+    r = vifusion("run", "--drive", copy, "--out", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    gaps = [w for w in json.loads((out / "report" / "summary.json").read_text())["warnings"] if "CAN gap" in w]
+    assert gaps and all(" for 0.3" in w and "from " in w and "[" not in w for w in gaps), gaps

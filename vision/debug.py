@@ -120,12 +120,26 @@ class DebugWriter:
     The file is written under a temporary name and renamed by :meth:`close`.
     """
 
+    #: The containers it writes: mp4v for ``.mp4 .mov .mkv``, MJPG for ``.avi``.
+    SUFFIXES = (".mp4", ".mov", ".mkv", ".avi")
+
     def __init__(self, path: str | os.PathLike, fps: float, camera: Camera) -> None:
-        self.path = Path(path)
+        self.path = self.check(path)
         self.tmp = self.path.with_name(self.path.stem + ".partial" + self.path.suffix)
         self.fps, self.camera = float(fps), camera
         self.writer = None
         self.size = None
+
+    @classmethod
+    def check(cls, path: str | os.PathLike) -> Path:
+        """``path`` if a debug video can be written there (a known suffix, an existing folder),
+        else :class:`VisionError`: for a command to say so before its work."""
+        path = Path(path)
+        if path.suffix.lower() not in cls.SUFFIXES:
+            raise VisionError(f"{path}: a debug video must end in {', '.join(cls.SUFFIXES)}")
+        if not path.parent.is_dir():
+            raise VisionError(f"{path}: no folder {path.parent}")
+        return path
 
     def write(self, image: np.ndarray, est: VisionEstimate, t_s: float | None = None) -> None:
         pic = render_debug(image, est, self.camera, t_s)

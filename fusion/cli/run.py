@@ -109,8 +109,13 @@ def run(args: argparse.Namespace) -> int:
     offset_s = settings.camera_time_offset_s
     truth = read_truth(files.truth)
     imu_truth = read_truth(files.imu_truth)
-    out, tmp = args.out, args.out.with_name(args.out.name + ".partial")
+    out = args.out.resolve()          # '--out .' names the folder it is
+    tmp = out.with_name(out.name + ".partial")
     _check_out(out)
+    if args.debug_video is not None:
+        from vision.debug import DebugWriter
+
+        DebugWriter.check(args.debug_video)
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
@@ -136,8 +141,11 @@ def run(args: argparse.Namespace) -> int:
         warnings.append("no pitch-rate channel: pitch rate reconstructed as yaw rate * tan(roll)")
     if not imu.attrs.get("complete", True):
         warnings.append(f"{files.can_log}: log incomplete ({imu.attrs.get('summary', {}).get('stopped', 'truncated')})")
-    for g in imu.attrs.get("gaps", [])[:5]:
-        warnings.append(f"CAN gap: {g}")
+    gaps = imu.attrs.get("gaps", [])
+    for source, start_s, duration_s in gaps[:5]:
+        warnings.append(f"CAN gap: no {source} frames for {duration_s:.3f} s from {start_s:.3f} s (never interpolated)")
+    if len(gaps) > 5:
+        warnings.append(f"CAN gaps: {len(gaps) - 5} more")
 
     frames = read_frame_times(files.frames, cfg.video, None if files.frames else _count_frames(files.video))
     check_overlap(frames["t_s"].to_numpy() + offset_s, imu["t_s"].to_numpy(),

@@ -46,8 +46,12 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
+    from vision.debug import DebugWriter
     from vision.options import options_from_table
     from vision.video import count_frames, default_workers, estimate_video
+
+    if args.debug_video is not None:
+        DebugWriter.check(args.debug_video)
 
     from ..config import load_config
     from ..drive import read_frame_times
