@@ -34,25 +34,28 @@ from .config import Table, read_toml
 from .ekf import NoiseModel, S
 from .errors import ConfigError
 
-__all__ = ["CALIBRATION_KEYS", "calibration_table", "calibration_from_state", "write_calibration",
-           "read_calibration"]
-
-#: A calibration's y gyro bias sigma from a run without a pitch gyro: the filter's default
-#: prior (:attr:`fusion.ekf.NoiseModel.init_gyro_bias_rad_s`), deg/s.
-NO_PITCH_GYRO_SIGMA_DEG_S = math.degrees(NoiseModel().init_gyro_bias_rad_s)
+__all__ = ["CALIBRATION_KEYS", "calibration_table", "calibration_from_state", "pitch_gyro_prior_deg_s",
+           "write_calibration", "read_calibration"]
 
 #: The ``[fusion]`` keys of a calibration (vehicle frame).
 CALIBRATION_KEYS = ("gyro_bias_deg_s", "gyro_bias_sigma_deg_s", "accel_bias_m_s2", "accel_bias_sigma_m_s2")
 
 
-def calibration_table(fused: pd.DataFrame) -> dict[str, list[float]]:
+def pitch_gyro_prior_deg_s(noise: NoiseModel) -> tuple[float, float]:
+    """The y gyro bias a run without a pitch gyro hands on: the prior it started from (mean and
+    1-sigma, deg/s): it measured nothing of it."""
+    sigma = np.broadcast_to(np.asarray(noise.init_gyro_bias_rad_s, dtype=float), (3,))[1]
+    return math.degrees(noise.gyro_bias_prior_rad_s[1]), math.degrees(float(sigma))
+
+
+def calibration_table(fused: pd.DataFrame, pitch_gyro_prior: tuple[float, float] | None = None) -> dict[str, list[float]]:
     """The bias estimates and their 1-sigma at the last sample of a fused table, as ``[fusion]``
     keys (``gyro_bias_*_deg_s``, ``accel_bias_*_m_s2`` and their ``*_sigma_*`` columns). A run
-    without a pitch gyro has no y gyro bias (NaN): its entry is the filter's prior, 0 with
-    :data:`NO_PITCH_GYRO_SIGMA_DEG_S`, nothing measured."""
+    without a pitch gyro has no y gyro bias (NaN in the table): give ``pitch_gyro_prior``
+    (:func:`pitch_gyro_prior_deg_s`) for its entry."""
     last = fused.iloc[-1].copy()
-    if not math.isfinite(last["gyro_bias_y_deg_s"]) and math.isfinite(last["gyro_bias_x_deg_s"]):
-        last["gyro_bias_y_deg_s"], last["gyro_bias_y_sigma_deg_s"] = 0.0, NO_PITCH_GYRO_SIGMA_DEG_S
+    if pitch_gyro_prior is not None:
+        last["gyro_bias_y_deg_s"], last["gyro_bias_y_sigma_deg_s"] = pitch_gyro_prior
     out = {
         "gyro_bias_deg_s": [float(last[f"gyro_bias_{a}_deg_s"]) for a in "xyz"],
         "gyro_bias_sigma_deg_s": [float(last[f"gyro_bias_{a}_sigma_deg_s"]) for a in "xyz"],
@@ -65,13 +68,16 @@ def calibration_table(fused: pd.DataFrame) -> dict[str, list[float]]:
     return out
 
 
-def calibration_from_state(x: np.ndarray, P: np.ndarray, has_pitch_rate: bool = True) -> dict[str, list[float]]:
+def calibration_from_state(x: np.ndarray, P: np.ndarray,
+                           pitch_gyro_prior: tuple[float, float] | None = None) -> dict[str, list[float]]:
     """The same keys from a filter state and covariance (:class:`fusion.ekf.AttitudeEKF` ``x, P``):
-    what an embedded filter saves when it stops (:meth:`fusion.realtime.LiveFusion.calibration`)."""
+    what an embedded filter saves when it stops (:meth:`fusion.realtime.LiveFusion.calibration`);
+    ``pitch_gyro_prior`` as for :func:`calibration_table` (without a pitch gyro, that state is
+    the pitch rate ``q = r tan(roll)`` leaves out)."""
     d = np.sqrt(np.maximum(np.diag(P), 0.0))
     bias, sigma = np.degrees(x[S.GYRO_BIAS]), np.degrees(d[S.GYRO_BIAS])
-    if not has_pitch_rate:      # that state is the pitch rate q = r tan(roll) leaves out
-        bias[1], sigma[1] = 0.0, NO_PITCH_GYRO_SIGMA_DEG_S
+    if pitch_gyro_prior is not None:
+        bias[1], sigma[1] = pitch_gyro_prior
     return {"gyro_bias_deg_s": bias.tolist(),
             "gyro_bias_sigma_deg_s": sigma.tolist(),
             "accel_bias_m_s2": x[S.ACCEL_BIAS].tolist(), "accel_bias_sigma_m_s2": d[S.ACCEL_BIAS].tolist()}

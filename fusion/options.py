@@ -72,6 +72,8 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
     for key, (name, conv, hi) in _NOISE_KEYS.items():
         if t.has(key):
             lo = 0.5 if key == "gate_probability" else 0.01 if key.endswith("_tau_s") else 0.0   # a time constant divides
+            if key == "no_pitch_rate_sigma_deg_s":
+                lo = 1e-3         # a state, not a constant: 0 would make its covariance singular
             changes[name] = conv(t.get(key, "float", min=lo, max=hi))
     for key, name, conv, hi in (("accel_bias_sigma_m_s2", "init_accel_bias_m_s2", float, 10.0),
                                 ("gyro_bias_sigma_deg_s", "init_gyro_bias_rad_s", math.radians, 100.0)):

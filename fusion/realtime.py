@@ -29,7 +29,7 @@ from vision.estimator import Estimator, VisionEstimate
 from vision.options import options_from_table
 from vision.twistmap import travel_between
 
-from .calibration import calibration_from_state
+from .calibration import calibration_from_state, pitch_gyro_prior_deg_s
 from .config import DriveConfig
 from .engine import Estimate, FusionStream
 from .errors import ConfigError
@@ -102,4 +102,5 @@ class LiveFusion:
         """The IMU biases now, with 1-sigma, as the ``[fusion]`` keys of a calibration: save them
         when the vehicle stops (``fusion.calibration.write_calibration``) and start the next
         drive from them (``[fusion]`` of the config, or ``vifusion run --calibration``)."""
-        return calibration_from_state(self.stream.ekf.x, self.stream.ekf.P, self.has_pitch_rate)
+        ekf = self.stream.ekf
+        return calibration_from_state(ekf.x, ekf.P, None if self.has_pitch_rate else pitch_gyro_prior_deg_s(ekf.noise))

@@ -40,6 +40,8 @@ class ReportInputs:
     title: str = "vifusion run"
     smoothed: bool = False
     camera_time_offset_s: float = 0.0
+    #: What calibration.toml holds (None: from ``fused``'s last sample, when it has one).
+    imu_calibration: dict | None = None
 
 
 def summarise(r: ReportInputs) -> dict:
@@ -49,7 +51,9 @@ def summarise(r: ReportInputs) -> dict:
                  "camera_time_offset_s": r.camera_time_offset_s}
     f = r.fused
     out["samples"] = int(len(f))
-    if len(f) and "gyro_bias_x_sigma_deg_s" in f:
+    if r.imu_calibration is not None:
+        out["imu_calibration"] = r.imu_calibration
+    elif len(f) and "gyro_bias_x_sigma_deg_s" in f:
         with contextlib.suppress(ValueError):   # none when the biases ended non-finite (a warning of the run)
             out["imu_calibration"] = calibration_table(f)   # what calibration.toml holds
     out["duration_s"] = float(f["t_s"].iloc[-1] - f["t_s"].iloc[0]) if len(f) else 0.0

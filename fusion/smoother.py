@@ -54,7 +54,12 @@ def rts_smooth(steps: list[StepRecord], x0: np.ndarray, P0: np.ndarray):
     x_prior = np.stack([s.x_prior for s in steps])
     P_prior = np.stack([s.P_prior for s in steps])
     F = np.stack([s.F for s in steps])
-    P_prior_inv = np.linalg.inv(P_prior)
+    try:
+        P_prior_inv = np.linalg.inv(P_prior)
+    except np.linalg.LinAlgError:
+        # a state held exactly (zero variance and zero process noise, e.g. a bias whose prior and
+        # walk were both set to 0): it takes no correction from later steps
+        P_prior_inv = np.linalg.pinv(P_prior, hermitian=True)
     xs, Ps = x_post.copy(), P_post.copy()
     for k in range(n - 1, -1, -1):
         # smoothing element k (state after steps[k-1]) from element k+1 (after steps[k])

@@ -369,3 +369,22 @@ def test_a_gap_in_the_can_log_is_a_warning(copy, tmp_path):
     assert r.returncode == 0, r.stderr
     gaps = [w for w in json.loads((out / "report" / "summary.json").read_text())["warnings"] if "CAN gap" in w]
     assert gaps and all(" for 0.3" in w and "from " in w and "[" not in w for w in gaps), gaps
+
+
+def test_a_debug_video_inside_out_is_refused(drive, tmp_path):
+    """The run replaces --out at its end: a debug video written into it would vanish (a review
+    found it deleted without a word on a second run)."""
+    out = tmp_path / "out"
+    assert vifusion("run", "--drive", drive, "--out", out, "--quiet", "--no-report").returncode == 0
+    one_line_error(vifusion("run", "--drive", drive, "--out", out, "--debug-video", out / "dbg.mp4"), "inside --out")
+    assert (out / "fused.csv").is_file()
+
+
+def test_campaign_drives_given_as_links_keep_their_names(drive, tmp_path):
+    """Two links to drive folders of the same name are two drives (their link names)."""
+    for name in ("day1", "day2"):
+        (tmp_path / name).symlink_to(drive, target_is_directory=True)
+    out = tmp_path / "camp"
+    r = vifusion("campaign", tmp_path / "day1", tmp_path / "day2", "--out", out, "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    assert (out / "day1" / "fused.csv").is_file() and (out / "day2" / "fused.csv").is_file()

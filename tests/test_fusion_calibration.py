@@ -96,3 +96,28 @@ def test_noise_values_beyond_any_vehicle_are_config_errors(table, key):
     """A typo of 1e300 once overflowed the covariance: NaN estimates written as valid."""
     with pytest.raises(ConfigError, match=f"{key} must be within"):
         fusion_options_from_table(table, "c.toml")
+
+
+def test_a_run_without_pitch_gyro_hands_on_its_prior_for_that_bias(tmp_path):
+    """No pitch gyro, no estimate of its bias: calibration.toml carries the prior the run started
+    from (here a calibration's 0.2 +- 0.05 deg/s), not a default, and the smoother copes with
+    the smallest pitch-rate sigma allowed."""
+    import math
+
+    from fusion.calibration import calibration_table, pitch_gyro_prior_deg_s
+    from fusion_support import synth_drive
+    from fusion.pipeline import fuse
+
+    d = synth_drive("banked_curve_left_5deg.toml", duration_s=6.0, vision_sigma_deg=0.1, pitch_rate=False)
+    opts, _ = fusion_options_from_table({"gyro_bias_deg_s": [0.1, 0.2, -0.1], "gyro_bias_sigma_deg_s": [0.05] * 3,
+                                         "no_pitch_rate_sigma_deg_s": 1e-3})
+    run = fuse(d.imu, d.vision, lever_arm_m=d.lever_arm_m, has_pitch_rate=False, options=opts, smooth=True)
+    assert run.fused["gyro_bias_y_deg_s"].isna().all()
+    assert np.isfinite(run.fused["roll_deg"]).all()
+    cal = calibration_table(run.fused, pitch_gyro_prior_deg_s(opts.noise))
+    assert cal["gyro_bias_deg_s"][1] == pytest.approx(0.2) and cal["gyro_bias_sigma_deg_s"][1] == pytest.approx(0.05)
+    assert all(math.isfinite(v) for v in cal["gyro_bias_deg_s"])
+    with pytest.raises(ValueError, match="gyro_bias"):
+        calibration_table(run.fused)          # without the prior: no finite y bias, said so
+    with pytest.raises(ConfigError, match="no_pitch_rate_sigma_deg_s"):
+        fusion_options_from_table({"no_pitch_rate_sigma_deg_s": 0.0})

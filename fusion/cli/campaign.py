@@ -17,6 +17,7 @@ import contextlib
 import io
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from . import USER_ERRORS, _one_line
     from . import run as run_cmd
 
-    names = [d.resolve().name for d in args.drives]      # '.' names its folder
+    names = [Path(os.path.abspath(d)).name for d in args.drives]      # '.' names its folder; links keep theirs
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         from ..errors import InputError
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     calibration = args.calibration
     rows = []
     for drive in args.drives:
-        out = args.out / drive.resolve().name
+        out = args.out / Path(os.path.abspath(drive)).name
         run_args = argparse.Namespace(
             drive=drive, video=None, frames=None, can=None, dbc=None, config=None, truth=None, out=out,
             smooth=args.smooth, calibration=calibration, estimate_time_offset=False, debug_video=None,

@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from vision.options import options_from_table
     from vision.video import default_workers, estimate_video
 
-    from ..calibration import calibration_table, read_calibration, write_calibration
+    from ..calibration import calibration_table, pitch_gyro_prior_deg_s, read_calibration, write_calibration
     from ..config import load_config
     from ..drive import check_overlap, check_truth_overlap, read_frame_times, read_truth
     from ..errors import ConfigError, InputError
@@ -116,6 +116,9 @@ def run(args: argparse.Namespace) -> int:
         from vision.debug import DebugWriter
 
         DebugWriter.check(args.debug_video)
+        if out in args.debug_video.resolve().parents:
+            raise InputError(f"--debug-video {args.debug_video} is inside --out {out}, which the run replaces: "
+                             "write it elsewhere")
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
@@ -191,8 +194,10 @@ def run(args: argparse.Namespace) -> int:
     timings["fusion"] = time.perf_counter() - t0
     warnings += fused.warnings
     _write_csv(table, tmp / "fused.csv")
+    calibration = None
     try:
-        write_calibration(calibration_table(fused.fused), tmp / "calibration.toml",
+        calibration = calibration_table(fused.fused, None if has_pitch_rate else pitch_gyro_prior_deg_s(fusion_opts.noise))
+        write_calibration(calibration, tmp / "calibration.toml",
                           f"{files.can_log} ({'smoothed' if smooth else 'forward filter'})")
     except ValueError as e:   # a filter that ended without finite biases: nothing to carry on
         warnings.append(f"no calibration.toml written: {e}")
@@ -204,7 +209,8 @@ def run(args: argparse.Namespace) -> int:
             fused=fused.fused, vision=vision, imu_only=imu_only.fused, plain_bank=pb, truth=truth,
             imu_truth=imu_truth, cov=fused.cov, counts={**fused.counts, **_can_counts(summary.as_dict())},
             timings_s=timings, time_offset=time_offset, warnings=warnings, smoothed=smooth,
-            title=f"vifusion run: {files.video.name}", camera_time_offset_s=offset_s), tmp / "report")
+            title=f"vifusion run: {files.video.name}", camera_time_offset_s=offset_s,
+            imu_calibration=calibration), tmp / "report")
         timings["report"] = time.perf_counter() - t0
 
     if out.exists():
