@@ -119,12 +119,17 @@ def read_truth(path: Path | None) -> pd.DataFrame | None:
     return df
 
 
+def _common_span(a_t: np.ndarray, b_t: np.ndarray) -> tuple[float, float] | None:
+    """The common span of two increasing time series, or None where they do not overlap."""
+    lo, hi = max(a_t[0], b_t[0]), min(a_t[-1], b_t[-1])
+    return (float(lo), float(hi)) if hi > lo else None
+
+
 def check_truth_overlap(truth: pd.DataFrame, imu_t: np.ndarray, truth_name, log_name) -> None:
     """An error when the truth's times miss the IMU samples' (a truth file of another drive, or
     on another clock): its RMSE would be NaN."""
     t = truth["t_s"].to_numpy(dtype=float)
-    lo, hi = max(t[0], imu_t[0]), min(t[-1], imu_t[-1])
-    if hi <= lo:
+    if _common_span(t, imu_t) is None:
         raise InputError(f"no overlap between the truth's times ({t[0]:.3f} .. {t[-1]:.3f} s, {truth_name}) "
                          f"and the CAN log's IMU samples ({imu_t[0]:.3f} .. {imu_t[-1]:.3f} s, {log_name})")
 
@@ -133,10 +138,10 @@ def check_overlap(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: str, log_
     """The common time span of the frames and the IMU samples; an error if there is none."""
     if len(frame_t) == 0 or len(imu_t) == 0:
         raise InputError(f"{frames_name if len(frame_t) == 0 else log_name}: no samples")
-    lo, hi = max(frame_t[0], imu_t[0]), min(frame_t[-1], imu_t[-1])
-    if hi <= lo:
+    span = _common_span(frame_t, imu_t)
+    if span is None:
         raise InputError(
             f"no overlap between the video's frame times ({frame_t[0]:.3f} .. {frame_t[-1]:.3f} s, {frames_name}) "
             f"and the CAN log's IMU samples ({imu_t[0]:.3f} .. {imu_t[-1]:.3f} s, {log_name}): "
             "are both on the CAN log's clock?")
-    return float(lo), float(hi)
+    return span

@@ -641,6 +641,10 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.x = np.zeros(DIM_X)
         self.x[S.GYRO_BIAS] = n.gyro_bias_prior_rad_s
         self.x[S.ACCEL_BIAS] = n.accel_bias_prior_m_s2
+        if not has_pitch_rate:
+            # no pitch gyro: its bias slot holds the pitch rate q = r tan(roll) leaves out (minus)
+            self.x[S.GYRO_BIAS_Y] = 0.0
+            sig0[S.GYRO_BIAS_Y] = n.no_pitch_rate_sigma_rad_s
         self.P = np.diag(sig0**2)
         self._I = np.eye(DIM_X)
         self.F = np.eye(DIM_X)
@@ -658,11 +662,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
         q[S.CURVATURE] = n.curvature_walk_1_m_sqrt_s**2
         q[S.ROLL_W] = q[S.YAW_REL] = n.pitch_walk_rad_sqrt_s**2
         q[S.PITCH_W] = (n.pitch_walk_rad_sqrt_s if has_pitch_rate else n.no_pitch_rate_walk_rad_sqrt_s) ** 2
-        if not has_pitch_rate:
-            # no pitch gyro: its bias state is the pitch rate q = r tan(roll) leaves out (minus)
+        if not has_pitch_rate:   # the pitch rate in the gyro's bias slot: Gauss-Markov, not a walk
             q[S.GYRO_BIAS_Y] = 2.0 * n.no_pitch_rate_sigma_rad_s**2 / n.no_pitch_rate_tau_s
-            self.x[S.GYRO_BIAS_Y] = 0.0
-            self.P[S.GYRO_BIAS_Y, S.GYRO_BIAS_Y] = n.no_pitch_rate_sigma_rad_s**2
         self._q_const = q
         self._q_scheduled = q.copy()   # with the bank-rate sigma of set_bank_rate_sigma
         self._bank_rate_scheduled = False
@@ -690,10 +691,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
         the vision is there)."""
         return self._q_scheduled if self._bank_rate_scheduled and not u.vision_gap else self._q_const
 
-    def _rate_taus(self, u: ImuStep) -> tuple[float, float]:
-        """Correlation times of the bank rate and the grade rate over this interval: while the
-        vision is away, ``bank_rate_tau_no_vision_s`` for the bank rate (the bank holds); the
-        grade rate keeps its own, the accelerometer measures it (module docstring)."""
+    def _rate_taus(self, u: ImuStep) -> tuple[float, float, float]:
+        """Correlation times of the bank rate, the grade rate and (without a pitch gyro) the
+        pitch rate over this interval: while the vision is away, ``bank_rate_tau_no_vision_s``
+        for the bank rate (the bank holds); the grade rate keeps its own, the accelerometer
+        measures it (module docstring)."""
         n = self.noise
         if u.vision_gap:
             return min(n.bank_rate_tau_s, n.bank_rate_tau_no_vision_s), n.grade_rate_tau_s, n.no_pitch_rate_tau_s

@@ -38,29 +38,31 @@ class RunSettings:
     smooth: bool = False
 
 
-# key -> (NoiseModel field, converter from the file's unit, largest value accepted). The limits
-# are far beyond any vehicle's (they keep a typo such as 1e300 from overflowing the filter's
-# covariance into NaN estimates, which a review found written as valid).
+# key -> (NoiseModel field, converter from the file's unit, smallest and largest value accepted).
+# The upper limits are far beyond any vehicle's (they keep a typo such as 1e300 from overflowing
+# the filter's covariance into NaN estimates, which a review found written as valid); a time
+# constant divides, so it cannot be 0, nor can the sigma of a state (its covariance would be
+# singular: the no-pitch-gyro pitch rate).
 _NOISE_KEYS = {
-    "gyro_noise_deg_s": ("gyro_noise_rad_s", math.radians, 100.0),
-    "gyro_bias_walk_deg_s_sqrt_s": ("gyro_bias_walk_rad_s_sqrt_s", math.radians, 10.0),
-    "accel_bias_walk_m_s2_sqrt_s": ("accel_bias_walk_m_s2_sqrt_s", float, 10.0),
-    "speed_noise_m_s": ("speed_meas_m_s", float, 100.0),
-    "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians, 100.0),
-    "no_pitch_rate_sigma_deg_s": ("no_pitch_rate_sigma_rad_s", math.radians, 100.0),
-    "no_pitch_rate_tau_s": ("no_pitch_rate_tau_s", float, 10.0),
-    "bank_rate_deg_s": ("bank_rate_rad_s", math.radians, 100.0),
-    "bank_rate_tau_s": ("bank_rate_tau_s", float, 1000.0),
-    "bank_rate_preview_floor_deg_s": ("bank_rate_preview_floor_rad_s", math.radians, 100.0),
-    "bank_rate_preview_gain": ("bank_rate_preview_gain", float, 100.0),
-    "grade_walk_deg_sqrt_s": ("grade_walk_rad_sqrt_s", math.radians, 100.0),
-    "grade_rate_deg_s": ("grade_rate_rad_s", math.radians, 100.0),
-    "grade_rate_tau_s": ("grade_rate_tau_s", float, 1000.0),
-    "longitudinal_jerk_m_s3": ("accel_x_walk_m_s2_sqrt_s", float, 1000.0),
-    "vision_sigma_scale": ("vision_sigma_scale", float, 1000.0),
-    "vision_sigma_floor_deg": ("vision_sigma_floor_rad", math.radians, 90.0),
-    "vision_road_model_error": ("vision_road_model_error", float, 100.0),
-    "gate_probability": ("gate_probability", float, 0.999999),
+    "gyro_noise_deg_s": ("gyro_noise_rad_s", math.radians, 0.0, 100.0),
+    "gyro_bias_walk_deg_s_sqrt_s": ("gyro_bias_walk_rad_s_sqrt_s", math.radians, 0.0, 10.0),
+    "accel_bias_walk_m_s2_sqrt_s": ("accel_bias_walk_m_s2_sqrt_s", float, 0.0, 10.0),
+    "speed_noise_m_s": ("speed_meas_m_s", float, 0.0, 100.0),
+    "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians, 0.0, 100.0),
+    "no_pitch_rate_sigma_deg_s": ("no_pitch_rate_sigma_rad_s", math.radians, 1e-3, 100.0),
+    "no_pitch_rate_tau_s": ("no_pitch_rate_tau_s", float, 0.01, 10.0),
+    "bank_rate_deg_s": ("bank_rate_rad_s", math.radians, 0.0, 100.0),
+    "bank_rate_tau_s": ("bank_rate_tau_s", float, 0.01, 1000.0),
+    "bank_rate_preview_floor_deg_s": ("bank_rate_preview_floor_rad_s", math.radians, 0.0, 100.0),
+    "bank_rate_preview_gain": ("bank_rate_preview_gain", float, 0.0, 100.0),
+    "grade_walk_deg_sqrt_s": ("grade_walk_rad_sqrt_s", math.radians, 0.0, 100.0),
+    "grade_rate_deg_s": ("grade_rate_rad_s", math.radians, 0.0, 100.0),
+    "grade_rate_tau_s": ("grade_rate_tau_s", float, 0.01, 1000.0),
+    "longitudinal_jerk_m_s3": ("accel_x_walk_m_s2_sqrt_s", float, 0.0, 1000.0),
+    "vision_sigma_scale": ("vision_sigma_scale", float, 0.0, 1000.0),
+    "vision_sigma_floor_deg": ("vision_sigma_floor_rad", math.radians, 0.0, 90.0),
+    "vision_road_model_error": ("vision_road_model_error", float, 0.0, 100.0),
+    "gate_probability": ("gate_probability", float, 0.5, 0.999999),
 }
 
 
@@ -69,11 +71,8 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
     t = Table(table or {}, "fusion", source)
     noise = NoiseModel()
     changes = {}
-    for key, (name, conv, hi) in _NOISE_KEYS.items():
+    for key, (name, conv, lo, hi) in _NOISE_KEYS.items():
         if t.has(key):
-            lo = 0.5 if key == "gate_probability" else 0.01 if key.endswith("_tau_s") else 0.0   # a time constant divides
-            if key == "no_pitch_rate_sigma_deg_s":
-                lo = 1e-3         # a state, not a constant: 0 would make its covariance singular
             changes[name] = conv(t.get(key, "float", min=lo, max=hi))
     for key, name, conv, hi in (("accel_bias_sigma_m_s2", "init_accel_bias_m_s2", float, 10.0),
                                 ("gyro_bias_sigma_deg_s", "init_gyro_bias_rad_s", math.radians, 100.0)):

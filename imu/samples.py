@@ -31,7 +31,7 @@ from .config import ACCEL, CHANNELS, GYRO, ImuMount
 
 __all__ = [
     "VALUE_COLUMNS", "FRESH_COLUMNS", "COLUMNS", "ImuSample", "Gap", "SourceStats", "ChannelStats",
-    "Summary", "vehicle_channel_map", "unavailable_channels", "align", "make_frame", "samples_frame",
+    "Summary", "vehicle_channel_map", "unavailable_channels", "never_seen", "align", "make_frame", "samples_frame",
     "rate_hz", "median_period_s",
 ]
 
@@ -250,6 +250,15 @@ def unavailable_channels(mapped: Iterable[str], mount: ImuMount) -> tuple[str, .
     mapped = set(mapped)
     cols = dict(zip(CHANNELS, VALUE_COLUMNS))
     return tuple(cols[v] for v, src, _ in vehicle_channel_map(mount) if src not in mapped)
+
+
+def never_seen(table: pd.DataFrame) -> tuple[str, ...]:
+    """Value columns of an IMU table (:func:`samples_frame`) that a mapped channel feeds but that
+    hold no finite value: the channel's frames never came (the table's ``unavailable`` ones
+    have no mapping at all and are not listed)."""
+    unavailable = set(table.attrs.get("unavailable", ()))
+    return tuple(c for c in VALUE_COLUMNS
+                 if c in table and c not in unavailable and not np.isfinite(table[c].to_numpy(dtype=float)).any())
 
 
 def rate_hz(t_s: np.ndarray) -> float:

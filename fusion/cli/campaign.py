@@ -61,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     calibration = args.calibration
     rows = []
-    for drive in args.drives:
-        out = args.out / Path(os.path.abspath(drive)).name
+    for drive, name in zip(args.drives, names):
+        out = args.out / name
         run_args = argparse.Namespace(
             drive=drive, video=None, frames=None, can=None, dbc=None, config=None, truth=None, out=out,
             smooth=args.smooth, calibration=calibration, estimate_time_offset=False, debug_video=None,

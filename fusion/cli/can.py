@@ -15,9 +15,8 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from imu import read_log
+from imu.samples import never_seen
 
 from ..config import Table, parse_can, parse_imu, read_toml
 from ..errors import ConfigError, InputError
@@ -74,11 +73,8 @@ def run(args: argparse.Namespace) -> int:
     if not summary.complete:
         print(f"warning: {args.log}: reading stopped early; {out} holds the first {summary.samples} samples "
               f"and is marked complete=false", file=sys.stderr)
-    unavailable = set(table.attrs.get("unavailable", ()))
-    for col in table.columns:
-        if col.startswith(("gyro_", "accel_", "speed_")) and col not in unavailable \
-                and not np.isfinite(table[col].to_numpy(dtype=float)).any():
-            print(f"warning: {args.log}: {col} never seen (all NaN in {out.name})", file=sys.stderr)
+    for col in never_seen(table):
+        print(f"warning: {args.log}: {col} never seen (all NaN in {out.name})", file=sys.stderr)
     _write_atomic(table, out)
     print(f"wrote {out} ({len(table)} rows)")
     return 0

@@ -75,7 +75,8 @@ def _inputs(args):
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from imu import read_log
+    from imu import CHANNELS, VALUE_COLUMNS, read_log
+    from imu.samples import never_seen
     from vision.options import options_from_table
     from vision.video import default_workers, estimate_video
 
@@ -130,18 +131,18 @@ def run(args: argparse.Namespace) -> int:
     timings["CAN decode"] = time.perf_counter() - t0
     unavailable = set(imu.attrs.get("unavailable", ()))
     essential = {"gyro_x_rad_s", "gyro_z_rad_s", "accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2", "speed_m_s"}
-    never = [c for c in ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s", "accel_x_m_s2", "accel_y_m_s2",
-                         "accel_z_m_s2", "speed_m_s") if c not in unavailable and not np.isfinite(imu[c]).any()]
+    never = never_seen(imu)
     missing = sorted((unavailable | set(never)) & essential)
     if missing:
-        channel = missing[0].removesuffix("_rad_s").removesuffix("_m_s2").removesuffix("_m_s")
+        channel = dict(zip(VALUE_COLUMNS, CHANNELS))[missing[0]]
         raise InputError(f"{files.can_log}: IMU channel {missing[0]} never seen (needed by the filter; "
                          f"mapped as {mapping.signals.get(channel, '?')})")
     if truth is not None:
         check_truth_overlap(truth, imu["t_s"].to_numpy(), files.truth, files.can_log)
     has_pitch_rate = "gyro_y_rad_s" not in unavailable and "gyro_y_rad_s" not in never
     if not has_pitch_rate:
-        warnings.append("no pitch-rate channel: pitch rate reconstructed as yaw rate * tan(roll)")
+        warnings.append("no pitch-rate channel: pitch rate reconstructed as yaw rate * tan(roll), less a "
+                        "modelled pitch rate it leaves out")
     if not imu.attrs.get("complete", True):
         warnings.append(f"{files.can_log}: log incomplete ({imu.attrs.get('summary', {}).get('stopped', 'truncated')})")
     gaps = imu.attrs.get("gaps", [])
