@@ -5,7 +5,8 @@ Every key is optional; units are in the names. Example::
 
     [fusion]
     gyro_noise_deg_s = 0.05          # 1-sigma of one gyro sample
-    accel_noise_m_s2 = [0.15, 0.15, 0.6]   # an example; the default is [0.1, 0.1, 1.0]
+    accel_noise_m_s2 = [0.1, 0.1, 0.3]     # an example; the default [0.5, 0.3, 1.6] is a car's
+                                     # unmodelled motion (NoiseModel.accel_meas_m_s2)
     accel_bias_sigma_m_s2 = 0.03     # residual after calibration (or one per axis); its lateral
                                      # part bounds the bank accuracy (0.01 m/s^2 = 0.06 deg)
     gyro_bias_sigma_deg_s = 0.5      # turn-on offset (or one per axis)

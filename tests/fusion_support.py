@@ -22,6 +22,10 @@ from drivesim.trajectory import Trajectory
 from imu.config import ImuMount
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "configs" / "scenarios"
+#: The simulated accelerometer's white noise per sample (every scenario's), which is what the
+#: filter should be told for a simulated drive (``tools/drivesim/drive.py`` writes it into a
+#: drive's config).
+SIM_ACCEL_NOISE_M_S2 = 0.03
 
 
 @dataclasses.dataclass
@@ -40,6 +44,7 @@ def synth_drive(scenario: str = "banked_curves_60s.toml", duration_s: float | No
                 accel_bias_m_s2: tuple = (0.03, 0.01, -0.03), pitch_rate: bool = True,
                 curvature_error: float = 0.0) -> SynthDrive:
     sc = load_scenario(SCENARIOS / scenario)
+    assert sc.imu.accel_noise_m_s2 == SIM_ACCEL_NOISE_M_S2, "the tests tell the filter SIM_ACCEL_NOISE_M_S2"
     imu_spec = dataclasses.replace(sc.imu, accel_bias_m_s2=accel_bias_m_s2, pitch_rate=pitch_rate)
     sc = dataclasses.replace(sc, imu=imu_spec, duration_s=duration_s or sc.duration_s)
     traj = Trajectory(build_road(sc), sc.motion)

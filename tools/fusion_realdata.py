@@ -124,6 +124,38 @@ def table(name: str, imu: pd.DataFrame, truth: pd.DataFrame, out: Path | None, a
         print(f"wrote {d}/fused.csv and {d}/report/report.html")
 
 
+def residuals(name: str, imu: pd.DataFrame, truth: pd.DataFrame, window_s: float = 1.0) -> None:
+    """What the specific-force model leaves out of a real vehicle's motion: the accelerometer
+    against the model evaluated on the truth's attitude (x forward, y left, z up; roll right
+    side down, pitch nose down, as the filter has them): ``f_x = dv/dt - g sin(pitch)``,
+    ``f_y = v r + g sin(roll) cos(pitch)``, ``f_z = g cos(roll) cos(pitch)`` (``dv/dt`` from
+    the wheel speed, ``r`` the yaw gyro; no lever arm, no road turn rates). Prints per axis the
+    residual's mean, its RMS per sample about that mean, and averaged over ``window_s``, and the
+    white noise per sample whose average over ``window_s`` has that RMS: the equivalent of
+    ``[fusion] accel_noise_m_s2`` at the time scale of the gravity reference
+    (:attr:`fusion.ekf.NoiseModel.accel_meas_m_s2` takes its default from comma2k19's)."""
+    t = imu["t_s"].to_numpy()
+    ok = imu["speed_m_s"].notna().to_numpy()
+    v = np.interp(t, t[ok], imu["speed_m_s"].to_numpy()[ok])
+    roll = np.radians(np.interp(t, truth["t_s"], truth["roll_world_deg"]))
+    pitch = np.radians(np.interp(t, truth["t_s"], truth["pitch_world_deg"]))
+    g = 9.80665
+    model = {"x": np.gradient(v, t) - g * np.sin(pitch),
+             "y": v * imu["gyro_z_rad_s"].to_numpy() + g * np.sin(roll) * np.cos(pitch),
+             "z": g * np.cos(roll) * np.cos(pitch)}
+    m = t >= t[0] + CONVERGED_S
+    rate = 1.0 / float(np.median(np.diff(t)))
+    n = max(int(round(window_s * rate)), 1)
+    print(f"\n{name}: specific force against the model on the truth's attitude, {rate:.0f} Hz, m/s^2")
+    print(f"| axis | mean | RMS per sample | RMS of {window_s:g} s means | white sigma per sample with that {window_s:g} s RMS |")
+    print("|---|---|---|---|---|")
+    for axis in "xyz":
+        r = (imu[f"accel_{axis}_m_s2"].to_numpy() - model[axis])[m]
+        r0 = r - r.mean()
+        avg = np.sqrt(np.mean(np.convolve(r0, np.ones(n) / n, mode="valid") ** 2))
+        print(f"| {axis} | {r.mean():+.3f} | {np.sqrt(np.mean(r0**2)):.3f} | {avg:.3f} | {avg * math.sqrt(n):.2f} |")
+
+
 def main(argv=None) -> int:
     from imu.errors import ImuError
     from imu import read_oxts
@@ -136,9 +168,11 @@ def main(argv=None) -> int:
     try:
         kitti = read_oxts(args.kitti)
         table("kitti_oxts", *kitti, args.out)
+        residuals("kitti_oxts", *kitti)
         table("kitti_oxts_no_pitch_gyro", *kitti, args.out, has_pitch_rate=False)
         comma = read_comma(args.comma)
         table("comma2k19_phone_imu", *comma, args.out)
+        residuals("comma2k19_phone_imu", *comma)
         # a phone's MEMS accelerometer: a zero-g offset of tens of mg, not a calibrated unit's 3 mg
         table("comma2k19_phone_imu_phone_prior", *comma, args.out, accel_bias_m_s2=0.2)
     except ImuError as exc:

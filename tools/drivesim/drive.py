@@ -141,11 +141,15 @@ def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps
               "", "[can]", f'dbc = "{dbc_name}"', "", "[can.signals]"]
     lines += [f'{k} = "{v}"' for k, v in signals.items()]
     lines += ["", "[video]", f"fps = {fps!r}", f"start_s = {start_s!r}"]
-    # The simulated IMU's datasheet values, as a user would enter theirs: gyro noise and the
-    # accelerometer's calibration residual per vehicle axis; the filter's model-error
-    # allowances stay at their defaults.
+    # The simulated IMU's datasheet values, as a user would enter theirs: gyro and
+    # accelerometer noise, and the accelerometer's calibration residual per vehicle axis. The
+    # simulated vehicle has no vibration, suspension heave or road roughness (its specific
+    # force is the model's to 0.002 m/s^2), so its accelerometer's noise is all the filter's
+    # accelerometer allowance needs (the default is a real car's, NoiseModel.accel_meas_m_s2);
+    # the other model-error allowances stay at their defaults.
     bias_sigma_v = np.abs(ImuMount(imu.axes, imu.position_m).R_v_from_imu) @ np.abs(np.asarray(imu.accel_bias_m_s2))
     lines += ["", "[fusion]", f"gyro_noise_deg_s = {max(imu.gyro_noise_deg_s, 1e-3)!r}",
+              "accel_noise_m_s2 = [" + ", ".join([repr(max(imu.accel_noise_m_s2, 1e-3))] * 3) + "]",
               "accel_bias_sigma_m_s2 = [" + ", ".join(repr(max(float(b), 0.005)) for b in bias_sigma_v) + "]",
               ""]
     return "\n".join(lines)
