@@ -29,8 +29,8 @@ import numpy as np
 
 from vision.frames import wrap_angle
 
-from .ekf import (AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, road_ahead_as_seen, vision_hx,
-                  vision_jacobian)
+from .ekf import (DIM_X, AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, road_ahead_as_seen,
+                  vision_hx, vision_jacobian)
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 
@@ -61,6 +61,11 @@ class FusionOptions:
     #: Apply the vision roll when the vehicle reaches the road it was measured on
     #: (:class:`fusion.ekf.RollAhead`) instead of modelling the bank ahead with the bank rate.
     defer_roll: bool = True
+    #: IMU samples further apart than this (a gap in the CAN stream) are not integrated
+    #: across: the mean of two gyro readings says nothing about a motorcycle's roll over
+    #: more than a fifth of a second (its roll modes are at 1-2 Hz). The filter starts again
+    #: from the sample after the gap (:meth:`FusionStream.restart`), s.
+    max_imu_gap_s: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -148,24 +153,43 @@ class FusionStream:
         self._speed_rejected_in_row = 0
         self._roll_rejected_in_row = 0
         self._roll_prop = 0.0   # running sum of the roll (relative to level) the propagation turned, rad
-        self.counts = dict(imu=0, vision_used=0, vision_rejected=0, vision_invalid=0, vision_late=0,
-                           vision_too_old=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
+        self._vision_times: deque[float] = deque()   # capture times of recent results (duplicates)
+        self.counts = dict(imu=0, imu_invalid=0, imu_gaps=0, vision_used=0, vision_rejected=0, vision_invalid=0,
+                           vision_late=0, vision_too_old=0, vision_duplicate=0, vision_future=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
                            roll_ahead_reacquired=0, twist_used=0, twist_rejected=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0)
 
     # ---- inputs ----
 
     def add_imu(self, t_s: float, gyro_rad_s, accel_m_s2, speed_m_s: float = math.nan,
                 speed_fresh: bool = False) -> None:
-        """One IMU sample in the vehicle frame (rates rad/s, specific force m/s^2) at ``t_s``."""
-        sample = _ImuSample(float(t_s), np.asarray(gyro_rad_s, dtype=float), np.asarray(accel_m_s2, dtype=float),
-                            float(speed_m_s), bool(speed_fresh) and math.isfinite(speed_m_s), self._n)
+        """One IMU sample in the vehicle frame (rates rad/s, specific force m/s^2) at ``t_s``.
+
+        A sample with a non-finite time, rate or force is skipped and counted
+        (``counts["imu_invalid"]``); one not after the previous sample is a ValueError; one more
+        than ``max_imu_gap_s`` after it restarts the filter (``counts["imu_gaps"]``)."""
+        t = float(t_s)
+        gyro, accel = np.asarray(gyro_rad_s, dtype=float), np.asarray(accel_m_s2, dtype=float)
+        if not (math.isfinite(t) and np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
+            self.counts["imu_invalid"] += 1
+            return
+        if self._hist and not t > self._hist[-1].t:
+            raise ValueError(f"IMU sample at {t:.6f} s is not after the previous one")
+        if self._hist and t - self._hist[-1].t > self.options.max_imu_gap_s:
+            self.restart()
+            self.counts["imu_gaps"] += 1
+        sample = _ImuSample(t, gyro, accel, float(speed_m_s), bool(speed_fresh) and math.isfinite(speed_m_s), self._n)
         self._n += 1
         self.counts["imu"] += 1
-        if self._hist and sample.t <= self._hist[-1].t:
-            raise ValueError(f"IMU sample at {sample.t:.6f} s is not after the previous one")
+        if not self._hist:
+            # the first sample (or the first after a gap): results from before the history
+            # window are as stale as a late result that old
+            old = [p for p in self._pending if p.t_s < t - self.options.history_s]
+            if old:
+                self._pending = [p for p in self._pending if p.t_s >= t - self.options.history_s]
+                self.counts["vision_too_old"] += sum(isinstance(p, VisionMeasurement) for p in old)
         # Vision results whose time this sample passes are applied inside the interval
         # (the queue is kept in time order: the first k).
-        k = bisect.bisect_right(self._pending, sample.t, key=_time_of)
+        k = bisect.bisect_right(self._pending, t, key=_time_of)
         ready = self._pending[:k]
         if k:
             del self._pending[:k]
@@ -191,7 +215,19 @@ class FusionStream:
             self.counts["vision_invalid"] += 1
             return
         tw = tuple(float(g) if math.isfinite(g) else 0.0 for g in twist_m)
-        item = VisionMeasurement(float(t_s), angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
+        t_s = float(t_s)
+        newest = self._hist[-1].t if self._hist else math.nan
+        if t_s > newest + self.options.history_s:
+            # far ahead of the IMU (a clock mix-up): it would wait in the queue for good
+            self.counts["vision_future"] += 1
+            return
+        while self._vision_times and self._vision_times[0] < newest - self.options.history_s:
+            self._vision_times.popleft()
+        if t_s in self._vision_times:
+            self.counts["vision_duplicate"] += 1   # the same frame twice: counted once
+            return
+        self._vision_times.append(t_s)
+        item = VisionMeasurement(t_s, angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
                                  float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw,
                                  float(road_twist_rad_m[0]), float(road_twist_rad_m[1]),
                                  tuple(float(g) for g in twist_response))
@@ -200,6 +236,27 @@ class FusionStream:
         else:
             self.counts["vision_late"] += 1
             self._apply_late(item)
+
+    def restart(self) -> None:
+        """Start again from the next IMU sample, keeping what is known of the IMU: its biases
+        and their covariance (the calibration, :mod:`fusion.calibration`). For a gap in the IMU
+        samples (``max_imu_gap_s``) or a bus clock that restarted: the attitude, the road and
+        the speed cannot be carried across, and results from before are dropped (deferred
+        rolls included). The smoother carries nothing backwards across it either."""
+        old = self.ekf
+        keep = [*range(S.GYRO_BIAS.start, S.GYRO_BIAS.stop), *range(S.ACCEL_BIAS.start, S.ACCEL_BIAS.stop)]
+        if not old.has_pitch_rate:
+            keep.remove(S.GYRO_BIAS_Y)   # that slot is the pitch rate q = r tan(roll) leaves out
+        self.ekf = AttitudeEKF(old.noise, old.lever_arm_m, old.has_pitch_rate)
+        self.ekf.x[keep] = old.x[keep]
+        self.ekf.P[np.ix_(keep, keep)] = old.P[np.ix_(keep, keep)]
+        newest = self._hist[-1].t if self._hist else -math.inf
+        self._hist.clear()
+        stale = [p for p in self._pending if p.t_s <= newest or isinstance(p, RollAhead)]
+        self.counts["vision_too_old"] += sum(isinstance(p, VisionMeasurement) for p in stale)
+        self._pending = [p for p in self._pending if not (p.t_s <= newest or isinstance(p, RollAhead))]
+        self._restore((False, (0.0, -math.inf), -math.inf, -math.inf, 0.0, 0, False, 0, 0,
+                       self.ekf._bank_rate_scheduled, float(self.ekf._q_scheduled[S.BANK_RATE])))
 
     # ---- core ----
 
@@ -224,6 +281,11 @@ class FusionStream:
         if prev is None:
             self._init_from_accel(s)
             s.gyro_dot = np.zeros(3)
+            if self.record and self.start is not None:
+                # a restart (restart()): a step whose Jacobian is zero, so that the smoother's
+                # gain is zero across it and each side is smoothed on its own
+                x0, P0 = self.ekf.x.copy(), self.ekf.P.copy()
+                self.steps.append(StepRecord(s.t, np.zeros((DIM_X, DIM_X)), x0, P0, x0.copy(), P0.copy(), s.index))
             self._sample_updates(s)
         else:
             t0, g0 = prev.t, prev.gyro
@@ -251,7 +313,7 @@ class FusionStream:
         s.x_post, s.P_post, s.roll_prop = ekf.x.copy(), ekf.P.copy(), self._roll_prop
         s.state = self._snapshot()
         if self.record:
-            if prev is None:
+            if prev is None and self.start is None:
                 self.start = (s.x_post, s.P_post)
             else:
                 self.steps[-1].x_post, self.steps[-1].P_post = s.x_post, s.P_post
@@ -471,6 +533,7 @@ class FusionStream:
             self._vision_update(item)
             base.applied = (*base.applied, item)
             base.x_post, base.P_post = self.ekf.x.copy(), self.ekf.P.copy()
+            base.state = self._snapshot()
             return
         prev = base
         for i, s in enumerate(replay):

@@ -18,6 +18,7 @@ Every key is optional; units are in the names. Example::
     smooth = false                   # forward filter + RTS smoother (offline)
     defer_roll = true                # vision roll applied when the vehicle reaches the road it
                                      # was measured on (false: modelled as the bank ahead)
+    max_imu_gap_s = 0.2              # IMU samples further apart: the filter starts again
 """
 
 from __future__ import annotations
@@ -89,13 +90,15 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
     if t.has("accel_noise_m_s2"):
         changes["accel_meas_m_s2"] = t.get("accel_noise_m_s2", "floats", length=3, min=1e-6, max=100.0)
     noise = replace(noise, **changes)
+    d = FusionOptions()
     opts = FusionOptions(
         noise=noise,
-        gravity_every=t.get("gravity_every", "int", 1, min=1, max=100),
-        history_s=t.get("history_s", "float", 1.0, min=0.0, max=60.0),
-        lane_fit_hold_s=t.get("lane_fit_hold_s", "float", 0.25, min=0.0, max=10.0),
-        reacquire_after_rejections=t.get("reacquire_after_rejections", "int", 10, min=1),
-        defer_roll=t.get("defer_roll", "bool", True),
+        gravity_every=t.get("gravity_every", "int", d.gravity_every, min=1, max=100),
+        history_s=t.get("history_s", "float", d.history_s, min=0.0, max=60.0),
+        lane_fit_hold_s=t.get("lane_fit_hold_s", "float", d.lane_fit_hold_s, min=0.0, max=10.0),
+        reacquire_after_rejections=t.get("reacquire_after_rejections", "int", d.reacquire_after_rejections, min=1),
+        defer_roll=t.get("defer_roll", "bool", d.defer_roll),
+        max_imu_gap_s=t.get("max_imu_gap_s", "float", d.max_imu_gap_s, min=1e-3, max=60.0),
     )
     run = RunSettings(
         camera_time_offset_s=t.get("camera_time_offset_s", "float", 0.0, min=-10.0, max=10.0),

@@ -174,6 +174,9 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         table["gyro_bias_y_deg_s"] = table["gyro_bias_y_sigma_deg_s"] = np.nan
     counts = dict(stream.counts)
     counts["vision_after_last_imu"] = int(len(vt) - j)
+    if counts["imu_gaps"]:
+        warnings.append(f"the IMU samples have {counts['imu_gaps']} gap(s) longer than {options.max_imu_gap_s:g} s: "
+                        "the filter started again after each, keeping the IMU biases")
     return FusedRun(table, counts, smooth, rel_cov[1], warnings)
 
 

@@ -1,0 +1,129 @@
+"""What the streaming filter does with the inputs a live bus and camera give besides the
+expected ones: a gap in the IMU samples, a sample with a NaN, the same vision result twice, a
+result dated far ahead of the IMU, results from before the IMU started. Synthetic drive,
+vision from the truth plus known noise (:mod:`fusion_support`)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from fusion.ekf import NoiseModel
+from fusion.engine import FusionOptions, FusionStream
+from fusion.pipeline import fuse
+
+from fusion_support import SIM_ACCEL_NOISE_M_S2, rmse_deg, synth_drive
+
+OPTIONS = FusionOptions(noise=NoiseModel(init_accel_bias_m_s2=(0.03, 0.01, 0.03),
+                                         accel_meas_m_s2=(SIM_ACCEL_NOISE_M_S2,) * 3))
+
+
+@pytest.fixture(scope="module")
+def drive():
+    return synth_drive("banked_curves_60s.toml", vision_sigma_deg=0.3)
+
+
+def _abs_error(f, truth, col):
+    return np.abs(f[col].to_numpy() - np.interp(f["t_s"], truth["t_s"], truth[col]))
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+def test_a_gap_in_the_imu_samples_restarts_the_filter(drive, smooth):
+    """No IMU sample for 1 s (30-31 s, in the 7 deg curve at 14 deg of lean): integrated
+    across with the mean of the two gyro readings, the bank was 11.5 deg off 5 s later with a
+    sigma of 0.4 deg (a review's measurement on a rendered drive). The filter now starts again
+    from the sample after the gap, keeping the IMU biases, and says so: measured, roll at most
+    0.45 deg off in the 3 s after (forward; 0.19 smoothed, each side of the gap smoothed on its
+    own), and from then on the RMSE of the run without the gap (0.178 / 0.098 deg). Bars: the
+    issue's 1 deg of lane loss for the first 3 s, within 0.02 deg of the gapless run after."""
+    keep = ~((drive.imu["t_s"] > 30.0) & (drive.imu["t_s"] < 31.0)).to_numpy()
+    run = fuse(drive.imu[keep], drive.vision, lever_arm_m=drive.lever_arm_m, options=OPTIONS, smooth=smooth)
+    base = fuse(drive.imu, drive.vision, lever_arm_m=drive.lever_arm_m, options=OPTIONS, smooth=smooth)
+    assert run.counts["imu_gaps"] == 1 and base.counts["imu_gaps"] == 0
+    assert any("gap" in w and "started again" in w for w in run.warnings), run.warnings
+    f, t = run.fused, run.fused["t_s"].to_numpy()
+    assert np.all(np.isfinite(f[["roll_deg", "bank_deg", "roll_sigma_deg"]].to_numpy()))
+    assert _abs_error(f, drive.truth, "roll_deg")[(t >= 31.0) & (t < 34.0)].max() < 1.0
+    tb = base.fused["t_s"].to_numpy()
+    for col in ("roll_deg", "pitch_deg", "yaw_deg", "bank_deg"):
+        after, ref = rmse_deg(f, drive.truth, col, mask=t >= 34.0), rmse_deg(base.fused, drive.truth, col, mask=tb >= 34.0)
+        assert after < ref + 0.02, (col, after, ref)
+
+
+def _feed(stream, imu, vision=None, vision_sigma_deg=0.3):
+    """IMU rows in order, each vision row (capture time, angles) handed in at the first IMU
+    sample at or after its time."""
+    j = 0
+    vt = vision["t_s"].to_numpy() if vision is not None else np.zeros(0)
+    for row in imu.itertuples():
+        while j < len(vt) and vt[j] <= row.t_s:
+            p = vision.iloc[j]
+            stream.add_vision(p.t_s, np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]),
+                              np.radians([vision_sigma_deg] * 3), True, p.curvature_1_m, p.lateral_offset_m)
+            j += 1
+        stream.add_imu(row.t_s, [row.gyro_x_rad_s, row.gyro_y_rad_s, row.gyro_z_rad_s],
+                       [row.accel_x_m_s2, row.accel_y_m_s2, row.accel_z_m_s2], row.speed_m_s, row.fresh_speed)
+
+
+def test_an_hour_without_imu_samples(drive):
+    """The bus quiet for an hour (the vehicle parked with the logger on), then the drive goes
+    on: the bank was 27,000 deg off before the restart existed; now within 0.5 deg of the truth
+    2 s after the bus returns, the biases carried."""
+    s = FusionStream(drive.lever_arm_m, options=OPTIONS)
+    first, second = drive.imu[drive.imu["t_s"] < 20.0], drive.imu[drive.imu["t_s"] >= 20.0]
+    _feed(s, first, drive.vision[drive.vision["t_s"] < 20.0])
+    bias = s.ekf.x[5:8].copy()
+    shifted = second.assign(t_s=second["t_s"] + 3600.0)
+    _feed(s, shifted[shifted["t_s"] < 3600.0 + 25.0], drive.vision[drive.vision["t_s"] >= 20.0].assign(
+        t_s=lambda v: v["t_s"] + 3600.0).query("t_s < 3625.0"))
+    assert s.counts["imu_gaps"] == 1
+    est = s.estimate()
+    truth_bank = np.interp(25.0 - 0.01, drive.truth["t_s"], drive.truth["bank_deg"])
+    assert abs(math.degrees(est.bank_rad) - truth_bank) < 0.5, (math.degrees(est.bank_rad), truth_bank)
+    np.testing.assert_allclose(s.ekf.x[5:8], bias, atol=math.radians(0.05))   # not re-learnt from zero
+
+
+def test_a_sample_with_a_nan_is_skipped_and_counted(drive):
+    """One gyro reading NaN (a decode that failed): skipped and counted, the state stays finite
+    and equal to the run that never had the sample; a NaN time too."""
+    imu = drive.imu[drive.imu["t_s"] < 5.0]
+    clean = FusionStream(drive.lever_arm_m, options=OPTIONS)
+    _feed(clean, imu.drop(index=imu.index[200]))
+    hit = FusionStream(drive.lever_arm_m, options=OPTIONS)
+    bad = imu.copy()
+    bad.loc[bad.index[200], "gyro_x_rad_s"] = np.nan
+    _feed(hit, bad)
+    hit.add_imu(math.nan, [0.0] * 3, [0.0, 0.0, 9.8])
+    assert hit.counts["imu_invalid"] == 2 and hit.counts["imu"] == clean.counts["imu"]
+    np.testing.assert_allclose(hit.ekf.x, clean.ekf.x, atol=1e-12)
+    with pytest.raises(ValueError, match="not after the previous"):
+        hit.add_imu(imu["t_s"].iloc[-1], [0.0] * 3, [0.0, 0.0, 9.8])
+    assert hit.counts["imu"] == clean.counts["imu"]   # the refused sample is not counted
+
+
+def test_the_same_result_twice_counts_once(drive):
+    """Every vision result handed in twice (a camera thread that repeats its last result): the
+    second is counted as a duplicate and not applied, which would halve its variance: the
+    state equals the single run's."""
+    imu, vis = drive.imu[drive.imu["t_s"] < 6.0], drive.vision[drive.vision["t_s"] < 6.0]
+    once, twice = FusionStream(drive.lever_arm_m, options=OPTIONS), FusionStream(drive.lever_arm_m, options=OPTIONS)
+    _feed(once, imu, vis)
+    _feed(twice, imu, vis.loc[vis.index.repeat(2)])
+    assert twice.counts["vision_duplicate"] == len(vis)
+    assert twice.counts["vision_used"] == once.counts["vision_used"]
+    np.testing.assert_allclose(twice.ekf.P, once.ekf.P, atol=1e-15)
+
+
+def test_results_far_ahead_or_from_before_the_imu_are_not_applied(drive):
+    """A result dated more than ``history_s`` after the newest IMU sample (frame times in ms
+    instead of s) is counted and dropped instead of waiting in the queue for good; results
+    from more than ``history_s`` before the first IMU sample (the camera started earlier, the
+    side stand's 20 deg of roll) are dropped as too old, not applied at the first sample."""
+    s = FusionStream(drive.lever_arm_m, options=OPTIONS)
+    for t in np.arange(-10.0, -1.5, 1 / 30):
+        s.add_vision(t, np.radians([20.0, 0.0, 0.0]), np.radians([0.1] * 3))
+    imu = drive.imu[drive.imu["t_s"] < 3.0]
+    _feed(s, imu.iloc[:10])
+    assert s.counts["vision_too_old"] == 255 and s.counts["vision_used"] == 0
+    s.add_vision(1000.0 * imu["t_s"].iloc[9], np.radians([0.0, 0.0, 0.0]), np.radians([0.1] * 3))
+    assert s.counts["vision_future"] == 1 and not s._pending
