@@ -5,6 +5,10 @@ to IMU samples, the same decode as the log path), :class:`vision.estimator.Estim
 frame to roll, pitch, yaw relative to the road) and :class:`fusion.engine.FusionStream` (the
 EKF). Frames may be handed in late, after the CAN samples of their capture time, as a vision
 thread that takes longer than an IMU interval would: the filter rolls back and re-propagates.
+The methods may be called from different threads (a bus thread, a camera thread): the filter
+is behind a lock, and the vision estimator runs outside it. A bus clock that restarts (the
+decoder's :data:`imu.can_source.CLOCK_RESET_AFTER`) restarts the filter, keeping the IMU
+biases; so does a gap in the IMU samples (:attr:`fusion.engine.FusionOptions.max_imu_gap_s`).
 
 Example (a live bus; ``frames`` yields (capture time on the bus clock, image))::
 
@@ -20,6 +24,7 @@ Example (a live bus; ``frames`` yields (capture time on the bus clock, image))::
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 
 import numpy as np
@@ -53,54 +58,83 @@ class LiveFusion:
                                 options_from_table(config.extra.get("vision"), source))
         self.stream = FusionStream(config.imu.position_m, self.has_pitch_rate, fusion_opts)
         self.samples = 0
+        #: IMU samples the decoder released without every gyro and accelerometer value (the
+        #: filter waits for the next complete one), frames not after the previous frame
+        #: (skipped), restarts of the filter on a bus clock that went back.
+        self.counts = dict(incomplete_samples=0, frames_out_of_order=0, clock_restarts=0)
+        self.warnings: list[str] = []
+        if self.settings.estimate_time_offset:
+            self.warnings.append("[fusion] estimate_time_offset needs the whole drive and is not done live: "
+                                 f"camera_time_offset_s = {self.settings.camera_time_offset_s:g} s is used")
+        self._lock = threading.RLock()
         self._speeds: deque = deque(maxlen=256)    # recent fresh wheel speeds: (t_s, m/s)
         self._last_frame = (math.nan, math.nan)    # the last frame: (t_s, speed then)
+        self._last_estimate: VisionEstimate | None = None
 
     def push_can(self, msg, received_s: float | None = None) -> int:
         """One CAN message (python-can ``Message``); returns how many IMU samples it released."""
         n = 0
-        for s in self.decoder.push(msg, received_s):
-            gyro = (s.gyro_x_rad_s, 0.0 if not self.has_pitch_rate else s.gyro_y_rad_s, s.gyro_z_rad_s)
-            accel = (s.accel_x_m_s2, s.accel_y_m_s2, s.accel_z_m_s2)
-            if not (np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
-                continue  # an incomplete sample: the filter waits for the next one
-            self.stream.add_imu(s.t_s, gyro, accel, s.speed_m_s, s.fresh_speed)
-            if s.fresh_speed and math.isfinite(s.speed_m_s):
-                self._speeds.append((s.t_s, s.speed_m_s))
-            n += 1
-        self.samples += n
+        with self._lock:
+            for s in self.decoder.push(msg, received_s):
+                gyro = (s.gyro_x_rad_s, 0.0 if not self.has_pitch_rate else s.gyro_y_rad_s, s.gyro_z_rad_s)
+                accel = (s.accel_x_m_s2, s.accel_y_m_s2, s.accel_z_m_s2)
+                if not (np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
+                    self.counts["incomplete_samples"] += 1   # the filter waits for the next one
+                    continue
+                if not s.t_s > self.stream.t_s and math.isfinite(self.stream.t_s):
+                    # the decoder took a new bus clock: nothing carries across but the biases
+                    self.stream.restart()
+                    self._speeds.clear()
+                    self._last_frame = (math.nan, math.nan)
+                    self.counts["clock_restarts"] += 1
+                self.stream.add_imu(s.t_s, gyro, accel, s.speed_m_s, s.fresh_speed)
+                if s.fresh_speed and math.isfinite(s.speed_m_s):
+                    self._speeds.append((s.t_s, s.speed_m_s))
+                n += 1
+            self.samples += n
         return n
 
     def push_frame(self, t_s: float, image) -> VisionEstimate:
         """A camera frame captured at ``t_s`` (bus clock, before the configured camera offset).
         The estimator is told the distance travelled since the last frame from the wheel speed
         (for the road's twist, :attr:`vision.options.EstimatorOptions.road_twist`), by the rule
-        of the offline run (:func:`fusion.pipeline.last_speed`)."""
+        of the offline run (:func:`fusion.pipeline.last_speed`). A frame not after the previous
+        one (a repeated or reordered frame) is skipped and counted (``counts``): the estimator's
+        road map moves forward only; the previous result is returned.
+        From one thread at a time (the estimator keeps the road map between frames)."""
         t_cap = t_s + self.settings.camera_time_offset_s
-        v = float(last_speed(*np.array(self._speeds).T, t_cap)[0]) if self._speeds else math.nan
-        t0, v0 = self._last_frame
-        travel = travel_between(v0, v, t_cap - t0)
-        self._last_frame = (t_cap, v)
-        est = self.vision.estimate(image, travel_m=travel)
+        with self._lock:
+            t0, v0 = self._last_frame
+            if not t_cap > t0 and math.isfinite(t0):
+                self.counts["frames_out_of_order"] += 1
+                return self._last_estimate
+            v = float(last_speed(*np.array(self._speeds).T, t_cap)[0]) if self._speeds else math.nan
+            self._last_frame = (t_cap, v)
+        est = self.vision.estimate(image, travel_m=travel_between(v0, v, t_cap - t0))
+        self._last_estimate = est
         self.push_vision(t_s, est)
         return est
 
     def push_vision(self, t_s: float, est: VisionEstimate) -> None:
         """A vision result computed elsewhere (another thread or process)."""
-        self.stream.add_vision(t_s + self.settings.camera_time_offset_s, est.rpy_rad,
-                               (est.roll_sigma_rad, est.pitch_sigma_rad, est.yaw_sigma_rad), est.valid,
-                               est.curvature_1_m, est.lateral_offset_m,
-                               est.curvature_sigma_1_m, est.roll_lookahead_m,
-                               (est.pitch_per_twist_m, est.yaw_per_twist_m),
-                               (est.road_twist_rad_m, est.road_twist_sigma_rad_m), est.twist_response)
+        with self._lock:
+            self.stream.add_vision(t_s + self.settings.camera_time_offset_s, est.rpy_rad,
+                                   (est.roll_sigma_rad, est.pitch_sigma_rad, est.yaw_sigma_rad), est.valid,
+                                   est.curvature_1_m, est.lateral_offset_m,
+                                   est.curvature_sigma_1_m, est.roll_lookahead_m,
+                                   (est.pitch_per_twist_m, est.yaw_per_twist_m),
+                                   (est.road_twist_rad_m, est.road_twist_sigma_rad_m), est.twist_response)
 
     def estimate(self) -> Estimate:
         """The latest estimate (after the newest IMU sample), with 1-sigma."""
-        return self.stream.estimate()
+        with self._lock:
+            return self.stream.estimate()
 
     def calibration(self) -> dict[str, list[float]]:
         """The IMU biases now, with 1-sigma, as the ``[fusion]`` keys of a calibration: save them
         when the vehicle stops (``fusion.calibration.write_calibration``) and start the next
         drive from them (``[fusion]`` of the config, or ``vifusion run --calibration``)."""
-        ekf = self.stream.ekf
-        return calibration_from_state(ekf.x, ekf.P, None if self.has_pitch_rate else pitch_gyro_prior_deg_s(ekf.noise))
+        with self._lock:
+            ekf = self.stream.ekf
+            return calibration_from_state(ekf.x, ekf.P,
+                                          None if self.has_pitch_rate else pitch_gyro_prior_deg_s(ekf.noise))

@@ -41,6 +41,11 @@ __all__ = ["StreamDecoder", "LiveSource"]
 #: thread late, and a tight margin would then split samples that the log path joins. It does
 #: not delay complete samples, which are yielded as soon as their last frame arrives.
 QUIET_BUS_MARGIN_S = 0.02
+#: Mapped frames in a row older than the newest accepted one after which the bus clock is
+#: taken to have restarted (a logger or interface restart, a stepped clock, or a single frame
+#: with a far-future stamp before it): about 70 ms of an IMU bus. Fewer are counted as
+#: ``backwards`` and dropped; without this one bad stamp silenced the stream for good.
+CLOCK_RESET_AFTER = 20
 
 _IMU = set(GYRO + ACCEL)
 #: Gaps kept per source for the summary of a long-running stream.
@@ -108,6 +113,9 @@ class StreamDecoder:
         self._vmap = vehicle_channel_map(mount)
         self._chan_lock: dict[int, Any] = {}
         self._last_t = -math.inf
+        self._backwards_in_row = 0
+        #: Times the bus clock was taken to have restarted (:data:`CLOCK_RESET_AFTER`).
+        self.clock_resets = 0
         self._src = [_SourceCount() for _ in self.plan.sources]
         self._msg_counts: dict[int, dict[str, int]] = {fid: {} for fid in self._by_id}
         self._open: deque[_Group] = deque()
@@ -178,8 +186,12 @@ class StreamDecoder:
         elif len(data) > length:
             counts["excess_length"] = counts.get("excess_length", 0) + 1
         if t < self._last_t:
-            counts["backwards"] = counts.get("backwards", 0) + 1
-            return []
+            self._backwards_in_row += 1
+            if self._backwards_in_row < CLOCK_RESET_AFTER:
+                counts["backwards"] = counts.get("backwards", 0) + 1
+                return []
+            self._reset_clock()
+        self._backwards_in_row = 0
         self._last_t = t
         payload = data[:length].ljust(length, b"\0")
         out: list[ImuSample] = []
@@ -192,7 +204,7 @@ class StreamDecoder:
             if t == sc.last_t:
                 sc.duplicates += 1
                 continue
-            if sc.frames and t - sc.last_t > self.gap_limit_s and len(sc.gaps) < _MAX_GAPS:
+            if sc.frames and math.isfinite(sc.last_t) and t - sc.last_t > self.gap_limit_s and len(sc.gaps) < _MAX_GAPS:
                 sc.gaps.append(Gap(src.name, sc.last_t, t - sc.last_t))
             if not sc.frames:
                 sc.first_t = t
@@ -204,6 +216,23 @@ class StreamDecoder:
                 sc.out_of_range[p.channel] = sc.out_of_range.get(p.channel, 0) + oor[j]
             out.extend(self._event(si, t, si_row, valid_row, received_s))
         return out
+
+    def _reset_clock(self) -> None:
+        """:data:`CLOCK_RESET_AFTER` frames in a row older than the newest: the bus clock
+        restarted or stepped (or one frame carried a far-future stamp). Take the new clock: the
+        samples still open straddle the step and are dropped, as is the speed history."""
+        self.clock_resets += 1
+        for g in self._open:
+            g.emitted = True
+        self._open.clear()
+        self._refs.clear()
+        for _, sp, _ in self._pending:
+            self._src[sp].unaligned += 1
+        self._pending.clear()
+        self._speed.clear()
+        for sc in self._src:
+            sc.last_t = -math.inf
+        self._last_t = -math.inf
 
     # --- alignment (same rule as imu.samples.align) ------------------------------------------
     def _event(self, si: int, t: float, si_row: list, valid_row: list,
