@@ -196,7 +196,7 @@ def parse_can(t: Table, base_dir: Path) -> CanMapping | None:
     if not t.data:
         return None
     dbc = t.get("dbc", "str")
-    gap = t.get("gap_limit_s", "float", 0.1, min=1e-6)
+    gap = t.get("gap_limit_s", "float", 0.1, min=1e-6, max=10.0)
     window = t.get("align_window_s", "float", 0.002, min=1e-6)
     range_check = t.get("range_check", "bool", True)
     pad_short = t.get("pad_short_frames", "bool", False)

@@ -13,6 +13,8 @@ one multiplexer value. Signals of one source are decoded from the same frames; t
 from __future__ import annotations
 
 import difflib
+import logging
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -126,6 +128,9 @@ def load_dbc(path: str | Path) -> Any:
         raise DecodeError(f"{path}: no such DBC file")
     if path.is_dir():
         raise DecodeError(f"{path}: is a directory, expected a DBC file")
+    log = logging.getLogger("cantools")
+    level = log.level
+    log.setLevel(logging.ERROR)   # its warnings (e.g. two messages with one ID) are ours to word: resolve()
     try:
         return cantools.database.load_file(path, strict=False)
     except cantools.database.UnsupportedDatabaseFormatError as e:
@@ -142,6 +147,8 @@ def load_dbc(path: str | Path) -> Any:
         raise DecodeError(f"{path}: cannot read DBC: {e}") from None
     except Exception as e:  # noqa: BLE001 - cantools' parsers raise many types on garbage input
         raise DecodeError(f"{path}: cannot parse DBC: {type(e).__name__}: {' '.join(str(e).split())[:200]}") from None
+    finally:
+        log.setLevel(level)
 
 
 def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
@@ -187,6 +194,12 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
             ) from None
         if getattr(msg, "is_container", False):
             raise ImuConfigError(f"{name}: {ref}: container messages are not supported")
+        id_key = (int(msg.frame_id), bool(msg.is_extended_frame))
+        twin = next((m.name for m in db.messages if m.name != msg.name
+                     and (int(m.frame_id), bool(m.is_extended_frame)) == id_key), None)
+        if twin is not None:
+            raise ImuConfigError(f"{name}: messages {msg.name} and {twin} both have ID {msg.frame_id:#x}: "
+                                 "their frames cannot be told apart")
         try:
             sig = msg.get_signal_by_name(sig_name)
         except KeyError:
@@ -198,6 +211,9 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
         unit = unit_override if unit_override is not None else (sig.unit or "")
         where = f"[can.units] {channel}" if unit_override is not None else f"{name}: {ref}"
         factor = si_factor(unit, channel, where)
+        if not (math.isfinite(float(sig.scale)) and sig.scale != 0 and math.isfinite(float(sig.offset))):
+            raise ImuConfigError(f"{name}: {ref}: scale {float(sig.scale):g}, offset {float(sig.offset):g}: "
+                                 "the scale must be a finite non-zero number and the offset finite")
         _check_fits(sig, msg, f"{name}: {ref}")
         mux = _mux_chain(sig, msg, f"{name}: {ref}")
         key = (msg.frame_id, bool(msg.is_extended_frame),

@@ -30,7 +30,7 @@ import logging
 import math
 import sys
 import warnings
-from collections import deque
+from collections import Counter, deque
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import islice
@@ -95,6 +95,7 @@ class _Lines:
         self.recording = True
         self.recorded: list[str] = []
         self.last = ""                  # the last line that was not blank
+        self.cut = False                # the file ended inside a line (no line end): not read
 
     def __iter__(self) -> "_Lines":
         return self
@@ -103,6 +104,11 @@ class _Lines:
         if self.replay:
             return self.replay.popleft()
         line = next(self.f)
+        if not line.endswith("\n") and line.strip():
+            # only a file's last line can lack its line end: a writer cut off mid-line, whose
+            # half a frame the readers would parse into wrong bytes
+            self.cut = True
+            raise StopIteration
         self.line_no += 1
         self.chars += len(line)
         if self.recording:
@@ -215,10 +221,10 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                     first = False
                     yield msg
                 yield from it
-                _check_asc_end(feed, header, state)
+                _check_end(feed, header, state)
                 return
             except StopIteration:
-                _check_asc_end(feed, header, state)
+                _check_end(feed, header, state)
                 return
             except (EOFError, OSError, gzip.BadGzipFile) as e:  # the file itself broke off
                 state.complete = False
@@ -246,10 +252,14 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                 feed.replay = deque(header)
 
 
-def _check_asc_end(feed: _Lines, header: list[str], state: ReadState) -> None:
-    """A Vector ASC log that opened a ``Begin TriggerBlock`` and does not close it broke off
+def _check_end(feed: _Lines, header: list[str], state: ReadState) -> None:
+    """A text log whose last line has no line end was cut off mid-line (that line is not read);
+    a Vector ASC log that opened a ``Begin TriggerBlock`` and does not close it broke off
     (python-can's writer and CANoe close it when the recording ends): marked incomplete."""
-    if state.fmt == ".asc" and any(h.lstrip().lower().startswith("begin triggerblock") for h in header) \
+    if feed.cut:
+        state.complete = False
+        state.problem(f"line {feed.line_no + 1}: the file ends inside it (no line end): truncated, that line not read")
+    elif state.fmt == ".asc" and any(h.lstrip().lower().startswith("begin triggerblock") for h in header) \
             and not feed.last.lstrip().lower().startswith("end triggerblock"):
         state.complete = False
         state.problem(f"line {feed.line_no}: no 'End TriggerBlock' at the end: truncated")
@@ -520,7 +530,21 @@ def _finish(path: Path, plan: DecodePlan, mount: ImuMount, packed: _Packed, chan
         count(short, "wrong_length")
         keep &= ~short
     count(keep & (length > msg_len), "excess_length")
-    # backwards: earlier than an already accepted mapped frame (dropped frames never raise the max)
+    # A stamp far ahead of both neighbours of its message ID (a clock glitch) is a bad timestamp;
+    # backwards: earlier than an already accepted mapped frame (dropped frames never raise the
+    # max; the streaming twin, imu.can_source.StreamDecoder, sees frames in this order too).
+    idx = np.flatnonzero(keep)
+    for fid in np.unique(aid[idx]):
+        rows = idx[aid[idx] == fid]
+        tr = t[rows]
+        if len(tr) >= 3:
+            glitch = np.zeros(len(tr), dtype=bool)
+            glitch[1:-1] = (tr[1:-1] - tr[:-2] > mapping.gap_limit_s) & (tr[1:-1] - tr[2:] > mapping.gap_limit_s)
+            if glitch.any():
+                gmask = np.zeros(n, dtype=bool)
+                gmask[rows[glitch]] = True
+                count(gmask, "bad_timestamp")
+                keep[rows[glitch]] = False
     idx = np.flatnonzero(keep)
     if len(idx):
         tk = t[idx]
@@ -603,9 +627,8 @@ def _summary(path, plan, mount, frames, stats_raw, per_msg, unaligned, unknown, 
                 out_of_range=int(oor[j]), rate_hz=rate_hz(fr.t_s[v]),
             ))
     unk: dict[str, int] = {}
-    if unknown:
-        ids, cnt = np.unique(np.asarray(unknown, dtype=np.int64), return_counts=True)
-        unk = {f"0x{int(i):X}": int(c) for i, c in zip(ids, cnt)}
+    for i, c in sorted(Counter(unknown).items()):   # python ints: a reader may give an ID no int64 holds
+        unk[f"0x{int(i):X}"] = int(c)
     for a, e in unknown_ext:
         key = f"0x{a:X}" + ("x" if e else " (standard)")
         unk[key] = unk.get(key, 0) + 1

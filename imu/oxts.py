@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import DecodeError
-from .samples import COLUMNS, FRESH_COLUMNS
+from .samples import COLUMNS, FRESH_COLUMNS, VALUE_COLUMNS
 
 __all__ = ["read_oxts"]
 
@@ -81,8 +81,10 @@ def read_oxts(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
                         "gyro_x_rad_s": o["wx"], "gyro_y_rad_s": o["wy"], "gyro_z_rad_s": o["wz"],
                         "accel_x_m_s2": o["ax"], "accel_y_m_s2": o["ay"], "accel_z_m_s2": o["az"],
                         "speed_m_s": o["vf"]})
-    for c in FRESH_COLUMNS:
-        imu[c] = True
+    for c, v in zip(FRESH_COLUMNS, VALUE_COLUMNS):   # a packet's nan or inf is no value
+        fine = np.isfinite(imu[v].to_numpy())
+        imu.loc[~fine, v] = np.nan
+        imu[c] = fine
     imu = imu[list(COLUMNS)]
     truth = pd.DataFrame({"t_s": t_s, "roll_world_deg": np.degrees(o["roll"]),
                           "pitch_world_deg": np.degrees(o["pitch"]), "yaw_world_deg": np.degrees(o["yaw"]),

@@ -281,3 +281,55 @@ def test_TRUNCATED_ASC_is_marked_incomplete(tmp_path, clean):
     assert not summary.complete and not table.attrs["complete"]
     assert any("End TriggerBlock" in p and "truncated" in p for p in summary.problems)
     assert 0 < len(table) < len(ref)
+
+
+def test_ONE_FAR_FUTURE_STAMP_is_a_bad_timestamp(tmp_path, clean):
+    """One rate frame stamped 1e6 s ahead (a clock glitch) between good neighbours: counted as a
+    bad timestamp and dropped, the rest decoded (it made every later frame 'backwards' and the
+    log was refused, naming a good frame)."""
+    _, _, msgs, ref, _ = clean
+    bad = list(msgs)
+    i = next(k for k in range(len(bad) // 2, len(bad)) if bad[k].arbitration_id == 0x174)
+    m = bad[i]
+    bad[i] = can.Message(timestamp=m.timestamp + 1e6, arbitration_id=m.arbitration_id, is_extended_id=False,
+                         data=m.data, channel=m.channel)
+    table, summary = read_log(_write(bad, tmp_path / "x.csv"), sim_mapping(), MOUNT_FRD)
+    rate = next(s for s in summary.sources if s.name == "IMU_RATE")
+    assert rate.bad_timestamp == 1 and rate.backwards == 0
+    assert len(table) == len(ref) - 1
+
+
+def test_AN_ID_NO_INTEGER_TYPE_HOLDS_is_an_unknown_id(tmp_path, clean):
+    """A text log line with a 20-digit hex ID (garbage a reader still parses): counted among
+    the unknown IDs (it was an OverflowError traceback)."""
+    _, _, msgs, ref, _ = clean
+    path = _write(msgs, tmp_path / "x.csv")
+    lines = path.read_text().splitlines()
+    fields = lines[-1].split(",")
+    fields[1] = "0x" + "F" * 20
+    path.write_text("\n".join(lines + [",".join(fields)]) + "\n")
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert summary.unknown_ids.get("0x" + "F" * 20) == 1 and len(table) == len(ref)
+
+
+@pytest.mark.parametrize("edit, pattern", [
+    (("BO_ 376 IMU_ACC", "BO_ 372 IMU_ACC"), "IMU_RATE and IMU_ACC both have ID 0x174"),
+    (("(0.005,-163.84)", "(0,-163.84)"), "scale 0, offset -163.84"),
+])
+def test_DBC_TWO_MESSAGES_ONE_ID_or_A_ZERO_SCALE(tmp_path, clean, edit, pattern):
+    """Two mapped messages with one frame ID would decode one's bytes as the other's signals;
+    a scale of 0 makes every frame the offset: both were decoded as valid (bank 80 deg off in a
+    run). Now one line naming them."""
+    from test_imu_common import DBC_PATH
+
+    text = DBC_PATH.read_text()
+    assert text.count(edit[0]) >= 1
+    dbc = tmp_path / "edited.dbc"
+    # (the value tables of the renumbered message are dropped: cantools refuses them orphaned)
+    lines = [line for line in text.replace(edit[0], edit[1], 1).splitlines()
+             if not (edit[0].startswith("BO_ 376") and line.startswith("VAL_ 376"))]
+    dbc.write_text("\n".join(lines) + "\n")
+    _, _, msgs, _, _ = clean
+    with pytest.raises(ImuConfigError) as e:
+        read_log(_write(msgs, tmp_path / "x.csv"), dataclasses.replace(sim_mapping(), dbc_path=dbc), MOUNT_FRD)
+    assert pattern in _one_line(e)

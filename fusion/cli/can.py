@@ -58,6 +58,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{out}: output must end in {' or '.join(OUT_SUFFIXES)}")
     if out.is_dir():
         raise InputError(f"{out}: is a directory, expected a file name")
+    if args.partial and out.suffix.lower() != ".parquet":
+        raise InputError(f"{out}: --partial needs a .parquet output, which keeps complete=false with the table "
+                         "(a CSV of a log that broke off would look complete)")
     mount, mapping = load_can_config(args.config)
     if args.dbc is not None:
         mapping = dataclasses.replace(mapping, dbc_path=Path(args.dbc))

@@ -144,7 +144,10 @@ def run(args: argparse.Namespace) -> int:
         warnings.append("no pitch-rate channel: pitch rate reconstructed as yaw rate * tan(roll), less a "
                         "modelled pitch rate it leaves out")
     if not imu.attrs.get("complete", True):
-        warnings.append(f"{files.can_log}: log incomplete ({imu.attrs.get('summary', {}).get('stopped', 'truncated')})")
+        problems = imu.attrs.get("summary", {}).get("problems") or ["truncated"]
+        end = imu["t_s"].iloc[-1] - imu["t_s"].iloc[0]
+        warnings.append(f"{files.can_log}: log incomplete, read up to {end:.1f} s ({problems[0]}): "
+                        "the fused table ends there")
     gaps = imu.attrs.get("gaps", [])
     for source, start_s, duration_s in gaps[:5]:
         warnings.append(f"CAN gap: no {source} frames for {duration_s:.3f} s from {start_s:.3f} s (never interpolated)")
