@@ -104,15 +104,21 @@ def read_frame_times(frames_csv: Path | None, timing: VideoTiming, n_frames: int
     return pd.DataFrame({"frame": frame.astype(int), "t_s": t})
 
 
-def read_truth(path: Path | None) -> pd.DataFrame | None:
+#: The columns of a drive's ``truth.csv`` (INTERFACE.md, "Drive on disk").
+TRUTH_COLUMNS = ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_world_deg", "pitch_world_deg")
+
+
+def read_truth(path: Path | None, columns: tuple[str, ...] = TRUTH_COLUMNS) -> pd.DataFrame | None:
+    """A truth table with ``columns`` (at least ``t_s``, two or more increasing times)."""
     if path is None:
         return None
     try:
         df = pd.read_csv(path)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: not a CSV file ({' '.join(str(e).split())})") from None
-    if "t_s" not in df.columns:
-        raise InputError(f"{path}: no t_s column")
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise InputError(f"{path}: not a truth table: no {', '.join(missing)} column (INTERFACE.md, drive on disk)")
     t = pd.to_numeric(df["t_s"], errors="coerce").to_numpy(dtype=float)
     if len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         raise InputError(f"{path}: t_s must hold two or more finite, increasing times")

@@ -22,7 +22,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from operator import attrgetter
 
 import numpy as np
@@ -546,10 +546,15 @@ class FusionStream:
     def t_s(self) -> float:
         return self._hist[-1].t if self._hist else math.nan
 
+    @property
+    def speed_known(self) -> bool:
+        """Whether a wheel speed has set the speed state (before it, the state is 0 m/s)."""
+        return self._speed_initialized
+
     def estimate(self) -> Estimate:
-        """The latest estimate (after the newest IMU sample)."""
-        return estimate_from(self.t_s, self.ekf.x, self.ekf.P, self.t_s - self._last_vision_t,
-                             self.ekf.has_pitch_rate)
+        """The latest estimate (after the newest IMU sample); speed NaN before the first wheel speed."""
+        est = estimate_from(self.t_s, self.ekf.x, self.ekf.P, self.t_s - self._last_vision_t, self.ekf.has_pitch_rate)
+        return est if self._speed_initialized else replace(est, speed_m_s=math.nan)
 
 
 def estimate_from(t_s: float, x: np.ndarray, P: np.ndarray, vision_age_s: float = math.nan,

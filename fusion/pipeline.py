@@ -154,6 +154,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         vd = v["lateral_offset_m"].to_numpy(dtype=float)
     else:
         vt = np.zeros(0)
+    speed_known = np.zeros(len(t), dtype=bool)
     X = np.empty((len(t), stream.ekf.dim_x))
     Pm = np.empty((len(t), stream.ekf.dim_x, stream.ekf.dim_x))
     j = 0
@@ -163,6 +164,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
             j += 1
         stream.add_imu(t[k], gyro[k], accel[k], speed[k], bool(fresh[k]))
         X[k], Pm[k] = stream.ekf.x, stream.ekf.P
+        speed_known[k] = stream.speed_known
     if smooth:
         xs, Ps = rts_smooth(stream.steps, *stream.start)
         at_sample = np.concatenate([[True], [s.imu_index >= 0 for s in stream.steps]])
@@ -172,6 +174,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     if not has_pitch_rate:
         # no pitch gyro, no bias of it: that state is the pitch rate q = r tan(roll) leaves out
         table["gyro_bias_y_deg_s"] = table["gyro_bias_y_sigma_deg_s"] = np.nan
+    table.loc[~speed_known, "speed_m_s"] = np.nan   # before the first wheel speed the state is a placeholder
     counts = dict(stream.counts)
     counts["vision_after_last_imu"] = int(len(vt) - j)
     if counts["imu_gaps"]:

@@ -22,6 +22,8 @@ from .metrics import consistency, interp_truth, rmse_table
 __all__ = ["ReportInputs", "write_report", "summarise"]
 
 CONVERGENCE_S = 2.0
+#: Scored time after the convergence below which the report gives no RMSE (a 2 s drive left one sample).
+MIN_SCORED_S = 1.0
 
 
 @dataclass
@@ -57,8 +59,11 @@ def summarise(r: ReportInputs) -> dict:
         with contextlib.suppress(ValueError):   # none when the biases ended non-finite (a warning of the run)
             out["imu_calibration"] = calibration_table(f)   # what calibration.toml holds
     out["duration_s"] = float(f["t_s"].iloc[-1] - f["t_s"].iloc[0]) if len(f) else 0.0
-    if r.truth is not None and len(f):
-        t0 = float(f["t_s"].iloc[0]) + CONVERGENCE_S
+    t0 = float(f["t_s"].iloc[0]) + CONVERGENCE_S if len(f) else math.nan
+    if r.truth is not None and len(f) and not f["t_s"].iloc[-1] - t0 >= MIN_SCORED_S:
+        out["warnings"] = [*r.warnings, f"no RMSE against truth: the drive has under {MIN_SCORED_S:g} s after the "
+                                        f"first {CONVERGENCE_S:g} s of convergence"]
+    elif r.truth is not None:
         acc = {"fused": rmse_table(f, r.truth, t0)}
         if r.vision is not None and len(r.vision):
             v = r.vision.assign(t_s=r.vision["t_s"] + r.camera_time_offset_s)
@@ -262,8 +267,20 @@ def write_report(r: ReportInputs, out_dir: str | Path) -> dict:
             "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>"
             + "\n".join(body) + "</body></html>")
     _atomic_write(out_dir / "report.html", page.encode())
-    _atomic_write(out_dir / "summary.json", json.dumps(summary, indent=2, default=_json_default).encode())
+    _atomic_write(out_dir / "summary.json",
+                  json.dumps(_finite_or_null(summary), indent=2, default=_json_default, allow_nan=False).encode())
     return summary
+
+
+def _finite_or_null(o):
+    """``summary`` with every non-finite number as None (JSON null): strict JSON has no NaN."""
+    if isinstance(o, dict):
+        return {k: _finite_or_null(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite_or_null(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    return o
 
 
 def _json_default(o):

@@ -128,7 +128,7 @@ def _drive_row(fused, out: Path) -> dict:
 def _write_tables(table, stem: Path) -> None:
     import os
 
-    for suffix, write in ((".csv", lambda p: table.to_csv(p, index=False, float_format="%.6g")),
+    for suffix, write in ((".csv", lambda p: table.to_csv(p, index=False, float_format="%.9g")),
                           (".parquet", lambda p: table.to_parquet(p, index=False))):
         path = stem.with_suffix(suffix)
         tmp = path.with_name(path.name + ".partial")

@@ -44,7 +44,7 @@ def add_parser(sub) -> None:
     p.add_argument("--workers", type=workers_arg, default=None,
                    help="processes for the vision (default: the cores available; 1 with --debug-video)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
     p.set_defaults(func=run)
 
 
@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     smooth = args.smooth or settings.smooth
     offset_s = settings.camera_time_offset_s
     truth = read_truth(files.truth)
-    imu_truth = read_truth(files.imu_truth)
+    imu_truth = read_truth(files.imu_truth, columns=("t_s",))
     out = args.out.resolve()          # '--out .' names the folder it is
     tmp = out.with_name(out.name + ".partial")
     _check_out(out)
@@ -285,5 +285,5 @@ def _print_summary(out, files, frames, imu, timings, warnings, summary, time_off
         for src, vals in summary["rmse_deg"].items():
             cells = ", ".join(f"{k} {v:.3f}" for k, v in vals.items() if isinstance(v, float) and k != "valid_fraction")
             print(f"RMSE vs truth [deg] {src}: {cells}")
-    for w in warnings:
+    for w in (summary or {}).get("warnings", warnings):   # the report's adds its own
         print(f"warning: {w}", file=sys.stderr)

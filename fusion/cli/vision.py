@@ -50,12 +50,14 @@ def run(args: argparse.Namespace) -> int:
     from vision.options import options_from_table
     from vision.video import count_frames, default_workers, estimate_video
 
-    if args.debug_video is not None:
-        DebugWriter.check(args.debug_video)
-
     from ..config import load_config
     from ..drive import read_frame_times
     from ..errors import InputError
+
+    if args.out.suffix.lower() not in (".csv", ".parquet"):
+        raise InputError(f"{args.out}: the vision table is written as .csv or .parquet")
+    if args.debug_video is not None:
+        DebugWriter.check(args.debug_video)
 
     cfg = load_config(args.config)
     table = dict(cfg.extra.get("vision") or {})
@@ -75,7 +77,10 @@ def run(args: argparse.Namespace) -> int:
                                     workers=args.workers or default_workers())
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_name(args.out.name + ".partial")
-    vision.to_csv(tmp, index=False, float_format="%.6f")
+    if args.out.suffix.lower() == ".parquet":
+        vision.to_parquet(tmp, index=False)
+    else:
+        vision.to_csv(tmp, index=False, float_format="%.6f")
     os.replace(tmp, args.out)
     n = len(vision)
     missing = f"; {stats['frames_missing']} listed frames not in the video" if stats["frames_missing"] else ""
