@@ -332,6 +332,7 @@ def test_bad_arguments_and_an_unreadable_video_are_one_line(copy, tmp_path):
     video = copy / "video.mp4"
     video.write_bytes(video.read_bytes()[:5000])
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "video.mp4")
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()   # failed after starting
 
 
 def test_smooth_and_time_offset_estimate_through_the_command(drive, tmp_path):

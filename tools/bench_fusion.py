@@ -20,6 +20,8 @@ runs the whole ``vifusion run`` as a user would (a subprocess, timed), then prin
 * the share of samples whose NEES of (roll, pitch, yaw, bank) lies in its 95 % chi-square band;
 * lane loss: vision removed for 5 s, the worst roll error meanwhile and the time after the
   lanes return until the roll error is back within the drive's own RMSE band;
+* the camera-to-CAN clock offset estimated from the data, with the frame times shifted by 0 and
+  100 ms;
 * speed: the run's wall time against the drive's duration, with the fixed costs apart, and the
   filter alone in IMU samples per second.
 
@@ -296,6 +298,27 @@ def _steady_and_runoffs(e, sig, used, ok, steady) -> list[tuple[float, float, fl
     return out
 
 
+#: Shifts of the frame times for the camera-offset estimate, s (the drives' true offset is 0).
+OFFSET_SHIFTS_S = (0.0, 0.1)
+
+
+def time_offsets(drive: Path, run_dir: Path) -> list:
+    """``[fusion] estimate_time_offset`` on the run's vision with the frame times shifted by each
+    of :data:`OFFSET_SHIFTS_S`: (shift, estimate or its reason, peak correlation)."""
+    from fusion.config import load_config
+    from fusion.timing import estimate_camera_offset
+    from imu import read_log
+
+    cfg = load_config(drive / "config.toml")
+    imu, _ = read_log(next(p for p in drive.glob("can.*")), cfg.can, cfg.imu)
+    vision = pd.read_csv(run_dir / "vision.csv")
+    out = []
+    for shift in OFFSET_SHIFTS_S:
+        est = estimate_camera_offset(vision.assign(t_s=vision["t_s"] + shift), imu)
+        out.append((shift, est.offset_s if est.ok else est.reason, est.correlation))
+    return out
+
+
 def filter_rate(drive: Path) -> float:
     """IMU samples per second through the forward filter alone (median of 3)."""
     from fusion.config import load_config
@@ -351,7 +374,7 @@ def main(argv=None) -> int:
     names = QUICK if args.quick else DRIVES
     from fusion.pipeline import FusionOptions
 
-    rows, speed_rows, view_rows, sigma_rows, no_q_rows = [], [], [], [], []
+    rows, speed_rows, view_rows, sigma_rows, no_q_rows, offset_rows = [], [], [], [], [], []
     for name in names:
         drive = cached_full_drive(name)
         out = drive.parent / (drive.name + "-run")
@@ -363,6 +386,7 @@ def main(argv=None) -> int:
                      summ_s["consistency"]["fraction_inside"], loss_max, recover, recover_bar))
         view_rows.append((name, road_in_view(drive, out)))
         no_q_rows.append((name, *without_pitch_gyro(drive, out, t_loss_s=8.0)))
+        offset_rows.append((name, time_offsets(drive, out)))
         sigma_rows.append((name, vision_sigmas(drive, out, FusionOptions().noise)))
         dur = summ["duration_s"]
         tm = summ["timings_s"]
@@ -441,6 +465,13 @@ def main(argv=None) -> int:
         (a, b, c), (d, e, f) = sg["twist"]
         print(f"{name:<26} {'twist':<6} {100 * sg['twist_share']:6.0f}% {1e3 * a:7.2f} {1e3 * b:7.2f} {c:6.2f} "
               f"{1e3 * d:12.2f} {1e3 * e:7.2f} {f:6.2f}")
+    print()
+    print("Camera-to-CAN offset estimated from the data (vision roll rate against gyro roll rate), the frame times")
+    print("shifted by each of these; the correct estimate is minus the shift [ms]")
+    for name, ests in offset_rows:
+        cells = "   ".join(f"{1e3 * sh:+5.0f}: " + (f"{1e3 * e:+7.1f} (r {r:.2f})" if isinstance(e, float) else f"none ({e})")
+                           for sh, e, r in ests)
+        print(f"{name:<26} {cells}")
     print()
     print(f"{'drive':<26} {'duration':>9} {'vifusion run':>13} {'fixed':>7} {'rest / duration':>16} "
           f"{'filter alone':>16} {'LiveFusion':>14}")

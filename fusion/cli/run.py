@@ -73,6 +73,17 @@ def _inputs(args):
 
 
 def run(args: argparse.Namespace) -> int:
+    """``vifusion run``; a run that fails leaves no ``OUT.partial`` behind."""
+    try:
+        return _run(args)
+    except BaseException:
+        partial = getattr(args, "partial_dir", None)
+        if partial is not None:
+            shutil.rmtree(partial, ignore_errors=True)
+        raise
+
+
+def _run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from imu import CHANNELS, VALUE_COLUMNS, read_log
@@ -123,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
+    args.partial_dir = tmp
     timings["start-up"] = time.perf_counter() - t_start
 
     # CAN first: it is cheap and fails fast on a bad log or mapping.
