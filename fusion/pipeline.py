@@ -219,6 +219,27 @@ def last_speed(speed_t_s: np.ndarray, speed_m_s: np.ndarray, t_s, max_age_s: flo
     return out
 
 
+#: Frames further apart than this (lanes lost) leave the per-sample plain bank NaN between them, s.
+PLAIN_BANK_MAX_FRAME_GAP_S = 0.1
+
+
+def frames_to_samples(t_s: np.ndarray, frame_t_s: np.ndarray, values: np.ndarray,
+                      max_gap_s: float = PLAIN_BANK_MAX_FRAME_GAP_S) -> np.ndarray:
+    """Per-frame ``values`` at the IMU sample times ``t_s``: interpolated between frames at most
+    ``max_gap_s`` apart, NaN before the first frame, after the last and across longer gaps (no
+    value where there was no vision)."""
+    t_s = np.asarray(t_s, dtype=float)
+    out = np.full(t_s.size, math.nan)
+    if len(frame_t_s) == 0:
+        return out
+    out[:] = np.interp(t_s, frame_t_s, values, left=math.nan, right=math.nan)
+    k = np.clip(np.searchsorted(frame_t_s, t_s, side="right"), 1, len(frame_t_s) - 1)
+    gap = frame_t_s[k] - frame_t_s[k - 1] if len(frame_t_s) > 1 else np.zeros(t_s.size)
+    exact = np.isin(t_s, frame_t_s)
+    out[(gap > max_gap_s) & ~exact] = math.nan
+    return out
+
+
 def plain_bank(fused_imu_only: pd.DataFrame, vision: pd.DataFrame, camera_time_offset_s: float = 0.0) -> pd.DataFrame:
     """Damon et al. 2018, section IV: bank = IMU roll (gravity-referenced) - vision roll.
 

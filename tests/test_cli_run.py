@@ -411,3 +411,19 @@ def test_outputs_a_review_found_wanting(drive, tmp_path):
     assert len(pd.read_parquet(pq)) == len(pd.read_csv(out / "vision.csv"))
     r = vifusion("--debug", "run", "--drive", tmp_path / "missing", "--out", tmp_path / "x")
     assert r.returncode != 0 and "Traceback" in r.stderr
+
+
+def test_the_plain_bank_column_has_no_value_without_vision(drive, tmp_path):
+    """fused.csv's bank_plain_deg is the per-frame IMU-minus-vision bank at the IMU samples: NaN
+    where the vision has no valid frame within 0.1 s either side (it was interpolated across
+    lane losses and held before the first frame), equal to the frame's value at a frame."""
+    out = tmp_path / "o"
+    assert vifusion("run", "--drive", drive, "--out", out, "--quiet", "--no-report").returncode == 0
+    fused, vision = pd.read_csv(out / "fused.csv"), pd.read_csv(out / "vision.csv")
+    tv = vision.loc[vision["valid"].astype(bool), "t_s"].to_numpy()
+    t = fused["t_s"].to_numpy()
+    k = np.clip(np.searchsorted(tv, t), 1, len(tv) - 1)
+    lost = (t < tv[0]) | (t > tv[-1]) | ((tv[k] - tv[k - 1] > 0.1) & ~np.isin(t, tv))
+    assert lost.any() and (~lost).any()          # the tiny drive has lanes on some frames only
+    assert fused.loc[lost, "bank_plain_deg"].isna().all()
+    assert fused.loc[~lost, "bank_plain_deg"].notna().all()
