@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import numbers
+
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -36,18 +39,18 @@ class ImuMount:
     def __post_init__(self) -> None:
         axes = tuple(str(a).strip().lower() for a in self.axes)
         if len(axes) != 3:
-            raise ImuConfigError(f"[imu] axes needs three entries, got {list(self.axes)}")
+            raise ImuConfigError(f"[imu] axes needs three entries, got {[str(a) for a in self.axes]}")
         names = [a.lstrip("+-") for a in axes]
         if sorted(names) != ["x", "y", "z"] or any(len(a) - len(n) > 1 for a, n in zip(axes, names)):
             raise ImuConfigError(
-                f'[imu] axes must be a signed permutation of "x", "y", "z", got {list(self.axes)}'
+                f'[imu] axes must be a signed permutation of "x", "y", "z", got {[str(a) for a in self.axes]}'
             )
         object.__setattr__(self, "axes", axes)
         if abs(np.linalg.det(self.R_v_from_imu) - 1.0) > 1e-9:
-            raise ImuConfigError(f"[imu] axes {list(self.axes)} is a reflection, not a rotation")
+            raise ImuConfigError(f"[imu] axes {list(axes)} is a reflection, not a rotation")
         p = tuple(float(x) for x in self.position_m)
-        if len(p) != 3:
-            raise ImuConfigError(f"[imu] position_m needs three numbers, got {list(self.position_m)}")
+        if len(p) != 3 or not all(math.isfinite(x) for x in p):
+            raise ImuConfigError(f"[imu] position_m needs three finite numbers, got {list(p)}")
         object.__setattr__(self, "position_m", p)
 
     @property
@@ -105,7 +108,7 @@ class CanMapping:
         for ch in self.units:
             if ch not in self.signals:
                 raise ImuConfigError(f"[can.units] {ch}: no such mapped channel")
-        if not self.gap_limit_s > 0:
+        if not (self.gap_limit_s > 0 and math.isfinite(self.gap_limit_s)):
             raise ImuConfigError(f"[can] gap_limit_s must be > 0, got {self.gap_limit_s}")
         if not 0 < self.align_window_s < self.gap_limit_s:
             raise ImuConfigError(
@@ -116,8 +119,13 @@ class CanMapping:
                 f"[can.signals] maps no gyro or accel channel (got {', '.join(self.signals) or 'none'}): "
                 "an IMU needs at least one"
             )
+        if isinstance(self.channel, numbers.Integral) and not isinstance(self.channel, bool):
+            object.__setattr__(self, "channel", int(self.channel))   # numpy integers too
         if self.channel is not None and (isinstance(self.channel, bool) or not isinstance(self.channel, (int, str))):
             raise ImuConfigError(f"[can] channel must be an integer or a string, got {self.channel!r}")
+        for key in ("range_check", "pad_short_frames"):
+            if not isinstance(getattr(self, key), (bool, np.bool_)):
+                raise ImuConfigError(f"[can] {key} must be true or false, got {getattr(self, key)!r}")
         object.__setattr__(self, "dbc_path", Path(self.dbc_path))
         object.__setattr__(self, "signals", MappingProxyType(dict(self.signals)))
         object.__setattr__(self, "units", MappingProxyType(dict(self.units)))

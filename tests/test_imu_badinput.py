@@ -4,6 +4,7 @@ decoded and the rest counted, or the read stops with one line naming the file, l
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import can
 import numpy as np
@@ -333,3 +334,20 @@ def test_DBC_TWO_MESSAGES_ONE_ID_or_A_ZERO_SCALE(tmp_path, clean, edit, pattern)
     with pytest.raises(ImuConfigError) as e:
         read_log(_write(msgs, tmp_path / "x.csv"), dataclasses.replace(sim_mapping(), dbc_path=dbc), MOUNT_FRD)
     assert pattern in _one_line(e)
+
+
+def test_API_CONSTRUCTORS_check_values_and_word_them_plainly():
+    """ImuMount and CanMapping built from code (not a TOML file): a NaN position, an infinite gap
+    limit and a string for a flag are errors; numpy values are shown as numbers, not reprs; a
+    numpy integer channel is an integer."""
+    from imu import ImuMount
+
+    for make, pattern in ((lambda: ImuMount(("x", "y", "z"), np.zeros(2)), r"got \[0\.0, 0\.0\]"),
+                          (lambda: ImuMount(np.array(["x", "y"])), r"got \['x', 'y'\]"),
+                          (lambda: ImuMount(position_m=[math.nan, 0.0, 0.0]), "finite"),
+                          (lambda: sim_mapping(gap_limit_s=math.inf), "gap_limit_s"),
+                          (lambda: sim_mapping(pad_short_frames="false"), "pad_short_frames must be true or false")):
+        with pytest.raises(ImuConfigError, match=pattern) as e:
+            make()
+        assert "np." not in str(e.value)
+    assert sim_mapping(channel=np.int64(0)).channel == 0
