@@ -43,7 +43,9 @@ class SignalPlan:
 
     ``factor_si`` multiplies the DBC physical value (``raw * scale + offset``) to rad/s, m/s^2
     or m/s; ``resolution_si`` is one raw step in SI. ``minimum``/``maximum`` are the DBC's
-    physical range (None where the DBC gives none).
+    physical range (None where the DBC gives none). ``invalid_raw``: raw values (unsigned bits)
+    that are no measurement: the signal's ``raw_invalid`` and the value-table entries named as
+    such (:data:`INVALID_CHOICE`, e.g. ``VAL_ ... 65535 "SNA"``).
     """
 
     channel: str
@@ -54,6 +56,7 @@ class SignalPlan:
     resolution_si: float
     minimum: float | None
     maximum: float | None
+    invalid_raw: frozenset = frozenset()
 
 
 @dataclass(frozen=True)
@@ -223,6 +226,7 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
             channel=channel, ref=ref, signal=sig, unit=unit, factor_si=factor,
             resolution_si=abs(float(sig.scale)) * factor,
             minimum=None if lo is None else float(lo), maximum=None if hi is None else float(hi),
+            invalid_raw=_invalid_raw(sig),
         )
         by_source.setdefault(key, []).append(plan)
         src_info[key] = (msg, mux)
@@ -238,6 +242,21 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
     clock = next(i for i, s in enumerate(sources) if any(p.channel == first for p in s.signals))
     known = frozenset(m.frame_id for m in db.messages)
     return DecodePlan(dbc_path=path, sources=tuple(sources), clock=clock, known_ids=known, mapping=mapping)
+
+
+#: Value-table names that mark a raw value as no measurement (signal not available, error, not
+#: yet initialised), as real DBCs write them.
+INVALID_CHOICE = re.compile(r"\bsna\b|invalid|error|fault|not[ _]?avail|\bn/?a\b|\binit", re.IGNORECASE)
+
+
+def _invalid_raw(sig: Any) -> frozenset:
+    """Raw values of ``sig`` that are no measurement (unsigned bits of its length)."""
+    mask = (1 << int(sig.length)) - 1
+    out = {int(raw) & mask for raw, name in (getattr(sig, "choices", None) or {}).items()
+           if INVALID_CHOICE.search(str(name))}
+    if sig.raw_invalid is not None:
+        out.add(int(sig.raw_invalid) & mask)
+    return frozenset(out)
 
 
 def _suggest(word: str, options: list[str]) -> str:

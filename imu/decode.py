@@ -211,10 +211,9 @@ def decode_source(data: np.ndarray, src: SourcePlan, range_check: bool) -> Sourc
         with np.errstate(invalid="ignore"):
             if plan.minimum is not None and plan.maximum is not None and plan.minimum < plan.maximum:
                 outside = (phys < plan.minimum) | (phys > plan.maximum)
-        raw_inv = plan.signal.raw_invalid
         bad_raw = np.zeros(n, dtype=bool)
-        if raw_inv is not None:
-            bad_raw = extract_raw(data, plan.signal) == _U64(int(raw_inv) & ((1 << 64) - 1))
+        if plan.invalid_raw:
+            bad_raw = np.isin(extract_raw(data, plan.signal), np.array(sorted(plan.invalid_raw), dtype=np.uint64))
         oor[:, j] = outside & present
         rinv[:, j] = bad_raw & present
         ok &= ~bad_raw
@@ -274,8 +273,7 @@ def decode_frame(payload: bytes, src: SourcePlan, range_check: bool) -> tuple[bo
         ok = math.isfinite(phys)
         outside = (plan.minimum is not None and plan.maximum is not None and plan.minimum < plan.maximum
                    and (phys < plan.minimum or phys > plan.maximum))
-        raw_inv = plan.signal.raw_invalid
-        bad_raw = raw_inv is not None and raw_scalar(payload, plan.signal) == (int(raw_inv) & ((1 << 64) - 1))
+        bad_raw = bool(plan.invalid_raw) and raw_scalar(payload, plan.signal) in plan.invalid_raw
         oor.append(int(outside))
         rinv.append(int(bad_raw))
         ok = ok and not bad_raw and not (range_check and outside)
