@@ -40,6 +40,9 @@ __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 _VISION_GAP_S = 0.1
 
 _time_of = attrgetter("t_s")
+#: A vision result dated further ahead of the newest IMU sample (and of history_s) is a clock
+#: mix-up, not a result the IMU has yet to reach, s.
+_MAX_VISION_LEAD_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -217,7 +220,7 @@ class FusionStream:
         tw = tuple(float(g) if math.isfinite(g) else 0.0 for g in twist_m)
         t_s = float(t_s)
         newest = self._hist[-1].t if self._hist else math.nan
-        if t_s > newest + self.options.history_s:
+        if t_s > newest + max(self.options.history_s, _MAX_VISION_LEAD_S):
             # far ahead of the IMU (a clock mix-up): it would wait in the queue for good
             self.counts["vision_future"] += 1
             return
@@ -237,7 +240,7 @@ class FusionStream:
             self.counts["vision_late"] += 1
             self._apply_late(item)
 
-    def restart(self) -> None:
+    def restart(self, clock_reset: bool = False) -> None:
         """Start again from the next IMU sample, keeping what is known of the IMU: its biases
         and their covariance (the calibration, :mod:`fusion.calibration`). For a gap in the IMU
         samples (``max_imu_gap_s``) or a bus clock that restarted: the attitude, the road and
@@ -250,11 +253,14 @@ class FusionStream:
         self.ekf = AttitudeEKF(old.noise, old.lever_arm_m, old.has_pitch_rate)
         self.ekf.x[keep] = old.x[keep]
         self.ekf.P[np.ix_(keep, keep)] = old.P[np.ix_(keep, keep)]
-        newest = self._hist[-1].t if self._hist else -math.inf
+        newest = self._hist[-1].t if self._hist and not clock_reset else math.inf
         self._hist.clear()
+        # results from before the gap (after a clock that went back: all) do not carry across
         stale = [p for p in self._pending if p.t_s <= newest or isinstance(p, RollAhead)]
         self.counts["vision_too_old"] += sum(isinstance(p, VisionMeasurement) for p in stale)
         self._pending = [p for p in self._pending if not (p.t_s <= newest or isinstance(p, RollAhead))]
+        if clock_reset:
+            self._vision_times.clear()
         self._restore((False, (0.0, -math.inf), -math.inf, -math.inf, 0.0, 0, False, 0, 0,
                        self.ekf._bank_rate_scheduled, float(self.ekf._q_scheduled[S.BANK_RATE])))
 

@@ -83,7 +83,7 @@ class LiveFusion:
                     continue
                 if not s.t_s > self.stream.t_s and math.isfinite(self.stream.t_s):
                     # the decoder took a new bus clock: nothing carries across but the biases
-                    self.stream.restart()
+                    self.stream.restart(clock_reset=True)
                     self._speeds.clear()
                     self._last_frame = (math.nan, math.nan)
                     self.counts["clock_restarts"] += 1
