@@ -157,6 +157,7 @@ class FusionStream:
         self._roll_rejected_in_row = 0
         self._roll_prop = 0.0   # running sum of the roll (relative to level) the propagation turned, rad
         self._vision_times: deque[float] = deque()   # capture times of recent results (duplicates)
+        self._initial_state = self._snapshot()        # what restart() returns the flags to
         self.counts = dict(imu=0, imu_invalid=0, imu_gaps=0, vision_used=0, vision_rejected=0, vision_invalid=0,
                            vision_late=0, vision_too_old=0, vision_duplicate=0, vision_future=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
                            roll_ahead_reacquired=0, twist_used=0, twist_rejected=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0)
@@ -186,10 +187,7 @@ class FusionStream:
         if not self._hist:
             # the first sample (or the first after a gap): results from before the history
             # window are as stale as a late result that old
-            old = [p for p in self._pending if p.t_s < t - self.options.history_s]
-            if old:
-                self._pending = [p for p in self._pending if p.t_s >= t - self.options.history_s]
-                self.counts["vision_too_old"] += sum(isinstance(p, VisionMeasurement) for p in old)
+            self._drop_pending(lambda p: p.t_s < t - self.options.history_s)
         # Vision results whose time this sample passes are applied inside the interval
         # (the queue is kept in time order: the first k).
         k = bisect.bisect_right(self._pending, t, key=_time_of)
@@ -256,13 +254,16 @@ class FusionStream:
         newest = self._hist[-1].t if self._hist and not clock_reset else math.inf
         self._hist.clear()
         # results from before the gap (after a clock that went back: all) do not carry across
-        stale = [p for p in self._pending if p.t_s <= newest or isinstance(p, RollAhead)]
-        self.counts["vision_too_old"] += sum(isinstance(p, VisionMeasurement) for p in stale)
-        self._pending = [p for p in self._pending if not (p.t_s <= newest or isinstance(p, RollAhead))]
+        self._drop_pending(lambda p: p.t_s <= newest or isinstance(p, RollAhead))
         if clock_reset:
             self._vision_times.clear()
-        self._restore((False, (0.0, -math.inf), -math.inf, -math.inf, 0.0, 0, False, 0, 0,
-                       self.ekf._bank_rate_scheduled, float(self.ekf._q_scheduled[S.BANK_RATE])))
+        self._restore(self._initial_state)
+
+    def _drop_pending(self, stale) -> None:
+        """Take the queued items for which ``stale(item)`` holds out of the queue; the vision
+        results among them count as too old."""
+        self.counts["vision_too_old"] += sum(isinstance(p, VisionMeasurement) and stale(p) for p in self._pending)
+        self._pending = [p for p in self._pending if not stale(p)]
 
     # ---- core ----
 

@@ -63,7 +63,7 @@ def summarise(r: ReportInputs) -> dict:
     if r.truth is not None and len(f) and not f["t_s"].iloc[-1] - t0 >= MIN_SCORED_S:
         out["warnings"] = [*r.warnings, f"no RMSE against truth: the drive has under {MIN_SCORED_S:g} s after the "
                                         f"first {CONVERGENCE_S:g} s of convergence"]
-    elif r.truth is not None:
+    elif r.truth is not None and len(f):
         acc = {"fused": rmse_table(f, r.truth, t0)}
         if r.vision is not None and len(r.vision):
             v = r.vision.assign(t_s=r.vision["t_s"] + r.camera_time_offset_s)

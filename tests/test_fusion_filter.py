@@ -15,14 +15,9 @@ from fusion.metrics import consistency
 from fusion.pipeline import fuse, plain_bank
 from fusion.timing import estimate_camera_offset
 
-from fusion_support import SIM_ACCEL_NOISE_M_S2, rmse_deg, synth_drive
+from fusion_support import SIM_NOISE, rmse_deg, synth_drive
 
 VISION_SIGMA_DEG = 0.3
-#: The filter is told the simulated IMU's calibration residual (per axis, as a datasheet would
-#: give it): 0.03 m/s^2 longitudinal and vertical, 0.01 m/s^2 lateral; and its accelerometer
-#: noise, all the simulated vehicle's specific force leaves out (the default allows for a real
-#: car's suspension and road, ``NoiseModel.accel_meas_m_s2``), as the simulator's configs do.
-SIM_NOISE = dict(init_accel_bias_m_s2=(0.03, 0.01, 0.03), accel_meas_m_s2=(SIM_ACCEL_NOISE_M_S2,) * 3)
 OPTIONS = FusionOptions(noise=NoiseModel(**SIM_NOISE))
 
 

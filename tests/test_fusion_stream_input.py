@@ -12,10 +12,9 @@ from fusion.ekf import NoiseModel
 from fusion.engine import FusionOptions, FusionStream
 from fusion.pipeline import fuse
 
-from fusion_support import SIM_ACCEL_NOISE_M_S2, rmse_deg, synth_drive
+from fusion_support import SIM_NOISE, rmse_deg, synth_drive
 
-OPTIONS = FusionOptions(noise=NoiseModel(init_accel_bias_m_s2=(0.03, 0.01, 0.03),
-                                         accel_meas_m_s2=(SIM_ACCEL_NOISE_M_S2,) * 3))
+OPTIONS = FusionOptions(noise=NoiseModel(**SIM_NOISE))
 
 
 @pytest.fixture(scope="module")
