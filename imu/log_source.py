@@ -28,6 +28,7 @@ import gc
 import gzip
 import logging
 import math
+import string
 import sys
 import warnings
 from collections import Counter, deque
@@ -95,7 +96,8 @@ class _Lines:
         self.recording = True
         self.recorded: list[str] = []
         self.last = ""                  # the last line that was not blank
-        self.cut = False                # the file ended inside a line (no line end): not read
+        self.unterminated = False       # the last line has no line end: complete or cut?
+        self.cut = False                # ... cut off mid-way: its frame is not read
 
     def __iter__(self) -> "_Lines":
         return self
@@ -105,10 +107,10 @@ class _Lines:
             return self.replay.popleft()
         line = next(self.f)
         if not line.endswith("\n") and line.strip():
-            # only a file's last line can lack its line end: a writer cut off mid-line, whose
-            # half a frame the readers would parse into wrong bytes
-            self.cut = True
-            raise StopIteration
+            # only a file's last line can lack its line end: a complete line of a writer that
+            # leaves the final line end out, or a line cut off mid-way (judged in _iter_text)
+            self.unterminated = True
+            line += "\n"
         self.line_no += 1
         self.chars += len(line)
         if self.recording:
@@ -219,8 +221,11 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                     feed.recording = False
                     header = feed.recorded[:-1]
                     first = False
-                    yield msg
-                yield from it
+                    if _whole(msg, feed):
+                        yield msg
+                for msg in it:
+                    if _whole(msg, feed):
+                        yield msg
                 _check_end(feed, header, state)
                 return
             except StopIteration:
@@ -231,6 +236,10 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                 state.problem(f"line {feed.line_no}: file read failed: {type(e).__name__}: {e}")
                 return
             except Exception as e:  # noqa: BLE001 - python-can's text parsers raise many types
+                if feed.unterminated:  # the last line, without line end, does not parse: cut off
+                    feed.cut = True
+                    _check_end(feed, header, state)
+                    return
                 state.bad_lines += 1
                 if state.bad_lines <= 5:
                     state.problem(f"line {feed.line_no}: unreadable {path.suffix} line skipped: "
@@ -252,13 +261,35 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                 feed.replay = deque(header)
 
 
+def _whole(msg: can.Message, feed: _Lines) -> bool:
+    """False for the frame of a last line without line end that a writer cut off mid-line: it
+    holds fewer data bytes than its DLC field announces (ASC, TRC, CSV state the DLC), or it ends
+    in half a byte (the readers take a lone last hex digit, or a candump line's odd last digit,
+    for a whole byte). A candump line cut between two bytes looks like a shorter frame: the
+    decoder counts it as a wrong length when the DBC says otherwise."""
+    if not feed.unterminated or msg.is_remote_frame:
+        return True
+    tokens = feed.last.split()
+    last = tokens[-1] if tokens else ""
+    cut = len(msg.data) < msg.dlc or (msg.dlc > 0 and len(last) == 1 and last in string.hexdigits)
+    if "#" in last:  # candump: ID#DATA or ID##<flags>DATA (CAN FD)
+        hexdata = last.split("#", 1)[1]
+        hexdata = hexdata[2:] if hexdata.startswith("#") else hexdata
+        cut = cut or len(hexdata) % 2 == 1
+    if cut:
+        feed.cut = True
+    return not cut
+
+
 def _check_end(feed: _Lines, header: list[str], state: ReadState) -> None:
-    """A text log whose last line has no line end was cut off mid-line (that line is not read);
+    """A text log whose last line, without line end, does not parse or misses data bytes was cut
+    off mid-line (that line is not read; a complete last line without line end is read);
     a Vector ASC log that opened a ``Begin TriggerBlock`` and does not close it broke off
     (python-can's writer and CANoe close it when the recording ends): marked incomplete."""
     if feed.cut:
         state.complete = False
-        state.problem(f"line {feed.line_no + 1}: the file ends inside it (no line end): truncated, that line not read")
+        state.problem(f"line {feed.line_no}: the file ends inside it (no line end, frame not whole): "
+                      "truncated, that line not read")
     elif state.fmt == ".asc" and any(h.lstrip().lower().startswith("begin triggerblock") for h in header) \
             and not feed.last.lstrip().lower().startswith("end triggerblock"):
         state.complete = False

@@ -354,3 +354,34 @@ def test_API_CONSTRUCTORS_check_values_and_word_them_plainly():
             make()
         assert "np." not in str(e.value)
     assert sim_mapping(channel=np.int64(0)).channel == 0
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".csv", ".trc", ".log"])
+def test_LAST_LINE_WITHOUT_LINE_END_whole_is_read_cut_is_marked(tmp_path, clean, suffix):
+    """A writer that leaves out the final line end wrote a complete log: read in full (it was
+    called truncated, and an ASC lost its 'End TriggerBlock'). A last line cut inside its data
+    bytes is a writer cut off: that frame is not decoded and the log is marked incomplete."""
+    _, _, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / f"x{suffix}")
+    ref, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert summary.complete
+    text = path.read_text()
+    path.write_text(text.rstrip("\n"))
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert summary.complete, summary.problems
+    assert len(table) == len(ref)
+    # cut the last frame line inside its last data byte (for ASC the line before the closing
+    # 'End TriggerBlock', dropped with it; a candump line also loses its direction flag)
+    lines = text.rstrip("\n").split("\n")
+    k = max(i for i, line in enumerate(lines) if line.strip() and not line.lower().startswith("end "))
+    data_line = lines[k].rstrip()
+    if suffix == ".log":
+        data_line = data_line.rsplit(" ", 1)[0]
+    if suffix != ".csv":
+        path.write_text("\n".join(lines[:k] + [data_line[:-1]]))
+    else:  # base64 data: cut inside it
+        path.write_text("\n".join(lines[:k] + [data_line[:-3]]))
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert not summary.complete
+    assert any("no line end" in p and "truncated" in p for p in summary.problems), summary.problems
+    assert len(ref) - 1 <= len(table) <= len(ref)
