@@ -245,15 +245,22 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
 
 
 #: Value-table names that mark a raw value as no measurement (signal not available, error, not
-#: yet initialised), as real DBCs write them.
-INVALID_CHOICE = re.compile(r"\bsna\b|invalid|error|fault|not[ _]?avail|\bn/?a\b|\binit", re.IGNORECASE)
+#: yet initialised), as real DBCs write them ...
+INVALID_CHOICE = re.compile(r"\bsna\b|invalid|error|fault|(un|not[ _]?)avail|\bn/?a\b|\binit", re.IGNORECASE)
+#: ... unless the name says the opposite: 'No error', 'No fault', 'Initialized', 'OK'.
+VALID_CHOICE = re.compile(r"\bno[ _-]?(error|fault|failure)s?\b|\binitiali[sz]ed\b|\bok(ay)?\b", re.IGNORECASE)
+
+
+def invalid_choice(name: str) -> bool:
+    """Whether a value-table name marks its raw value as no measurement."""
+    return bool(INVALID_CHOICE.search(name)) and not VALID_CHOICE.search(name)
 
 
 def _invalid_raw(sig: Any) -> frozenset:
     """Raw values of ``sig`` that are no measurement (unsigned bits of its length)."""
     mask = (1 << int(sig.length)) - 1
     out = {int(raw) & mask for raw, name in (getattr(sig, "choices", None) or {}).items()
-           if INVALID_CHOICE.search(str(name))}
+           if invalid_choice(str(name))}
     if sig.raw_invalid is not None:
         out.add(int(sig.raw_invalid) & mask)
     return frozenset(out)

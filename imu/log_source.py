@@ -80,9 +80,18 @@ class ReadState:
     position: Callable[[], int] | None = None
     size: int | None = None
 
+    stop_reason: str = ""               # why the read stopped early (the first cause)
+
     def problem(self, text: str) -> None:
         if len(self.problems) < 20:
             self.problems.append(" ".join(text.split())[:300])
+
+    def stopped(self, text: str) -> None:
+        """The read stopped before the file's end (or the file broke off), for this reason."""
+        self.complete = False
+        self.problem(text)
+        if not self.stop_reason:
+            self.stop_reason = " ".join(text.split())[:300]
 
 
 class _Lines:
@@ -232,8 +241,7 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                 _check_end(feed, header, state)
                 return
             except (EOFError, OSError, gzip.BadGzipFile) as e:  # the file itself broke off
-                state.complete = False
-                state.problem(f"line {feed.line_no}: file read failed: {type(e).__name__}: {e}")
+                state.stopped(f"line {feed.line_no}: file read failed: {type(e).__name__}: {e}")
                 return
             except Exception as e:  # noqa: BLE001 - python-can's text parsers raise many types
                 if feed.unterminated:  # the last line, without line end, does not parse: cut off
@@ -287,13 +295,11 @@ def _check_end(feed: _Lines, header: list[str], state: ReadState) -> None:
     a Vector ASC log that opened a ``Begin TriggerBlock`` and does not close it broke off
     (python-can's writer and CANoe close it when the recording ends): marked incomplete."""
     if feed.cut:
-        state.complete = False
-        state.problem(f"line {feed.line_no}: the file ends inside it (no line end, frame not whole): "
+        state.stopped(f"line {feed.line_no}: the file ends inside it (no line end, frame not whole): "
                       "truncated, that line not read")
     elif state.fmt == ".asc" and any(h.lstrip().lower().startswith("begin triggerblock") for h in header) \
             and not feed.last.lstrip().lower().startswith("end triggerblock"):
-        state.complete = False
-        state.problem(f"line {feed.line_no}: no 'End TriggerBlock' at the end: truncated")
+        state.stopped(f"line {feed.line_no}: no 'End TriggerBlock' at the end: truncated")
 
 
 def _iter_binary(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[can.Message]:
@@ -315,13 +321,11 @@ def _iter_binary(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[
         try:
             yield from reader
         except Exception as e:  # noqa: BLE001
-            state.complete = False
-            state.problem(f"reading stopped after {state.messages} messages: {type(e).__name__}: "
+            state.stopped(f"reading stopped after {state.messages} messages: {type(e).__name__}: "
                           f"{' '.join(str(e).split())[:200] or 'corrupt data'}")
         announced = getattr(reader, "file_size", None)
         if isinstance(announced, int) and announced > (state.size or 0) and not gz:
-            state.complete = False
-            state.problem(f"file has {state.size} bytes but its {fmt} header says {announced}: truncated")
+            state.stopped(f"file has {state.size} bytes but its {fmt} header says {announced}: truncated")
     finally:
         try:
             reader.stop()
@@ -671,7 +675,7 @@ def _summary(path, plan, mount, frames, stats_raw, per_msg, unaligned, unknown, 
         unavailable=unavailable_channels(mapping.signals, mount), unknown_ids=unk,
         unmapped_frames=unmapped_frames,
         error_frames=error_frames, bad_lines=state.bad_lines, reader_warnings=state.warnings,
-        problems=tuple(state.problems), complete=state.complete,
+        problems=tuple(state.problems), complete=state.complete, stop_reason=state.stop_reason,
     )
 
 

@@ -158,6 +158,7 @@ class Summary:
     reader_warnings: int = 0
     problems: tuple[str, ...] = ()
     complete: bool = True
+    stop_reason: str = ""             # why the read stopped early (one of ``problems``)
 
     @property
     def decode_errors(self) -> int:

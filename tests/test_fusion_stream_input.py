@@ -126,3 +126,24 @@ def test_results_far_ahead_or_from_before_the_imu_are_not_applied(drive):
     assert s.counts["vision_too_old"] == 255 and s.counts["vision_used"] == 0
     s.add_vision(1000.0 * imu["t_s"].iloc[9], np.radians([0.0, 0.0, 0.0]), np.radians([0.1] * 3))
     assert s.counts["vision_future"] == 1 and not s._pending
+
+
+def test_speed_is_nan_until_the_first_wheel_speed(drive):
+    """The speed state starts at 0 as a placeholder; until the first wheel speed arrives the
+    outputs say NaN (0 m/s would read as standing still), after it the wheel speed within the
+    speed noise (5 cm/s, the simulator's wheel speed is exact)."""
+    imu = drive.imu[drive.imu["t_s"] < 3.0].copy()
+    first = imu.index[100]
+    imu.loc[imu.index < first, "speed_m_s"] = np.nan
+    imu.loc[imu.index < first, "fresh_speed"] = False
+    run = fuse(imu, None, lever_arm_m=drive.lever_arm_m, options=OPTIONS)
+    before = run.fused["t_s"] < imu.loc[first, "t_s"]
+    assert run.fused.loc[before, "speed_m_s"].isna().all() and before.sum() == 100
+    after = run.fused.loc[~before, "speed_m_s"].to_numpy()
+    truth = np.interp(run.fused.loc[~before, "t_s"], drive.truth["t_s"], drive.truth["speed_m_s"])
+    assert np.isfinite(after).all() and np.max(np.abs(after - truth)) < 0.05
+    stream = FusionStream(drive.lever_arm_m, options=OPTIONS)
+    _feed(stream, imu.iloc[:50])
+    assert math.isnan(stream.estimate().speed_m_s)
+    _feed(stream, imu.iloc[50:150])
+    assert abs(stream.estimate().speed_m_s - truth[49]) < 0.05

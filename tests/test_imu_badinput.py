@@ -195,6 +195,19 @@ def test_OUT_OF_RANGE_and_SNA_values_are_invalid(tmp_path, clean):
     assert s2.channels[0].invalid == hits
 
 
+@pytest.mark.parametrize("name, invalid", [
+    ("SNA", True), ("Signal not available", True), ("unavailable", True), ("FAULT_TIMEOUT", True),
+    ("Init", True), ("invalid", True), ("N/A", True), ("Error", True),
+    # names that say the opposite (comma2k19's Toyota DBC has "NO_FAULT"; it matched 'fault')
+    ("NO_FAULT", False), ("No error", False), ("Initialized", False), ("ok", False),
+    ("valid", False), ("Snap", False), ("Nasa", False),
+])
+def test_VALUE_TABLE_NAMES_invalid_or_not(name, invalid):
+    from imu.dbc import invalid_choice
+
+    assert invalid_choice(name) is invalid
+
+
 def test_REMOTE_ERROR_and_EXTENDED_twins_are_skipped(tmp_path, clean):
     _, _, msgs, ref, _ = clean
     t = msgs[10].timestamp
@@ -385,3 +398,18 @@ def test_LAST_LINE_WITHOUT_LINE_END_whole_is_read_cut_is_marked(tmp_path, clean,
     assert not summary.complete
     assert any("no line end" in p and "truncated" in p for p in summary.problems), summary.problems
     assert len(ref) - 1 <= len(table) <= len(ref)
+
+
+def test_STOP_REASON_is_the_cause_not_the_first_problem(tmp_path, clean):
+    """Unreadable lines early in a log and a cut at its end: the summary's stop reason (what
+    `vifusion can` and the run report name) is the cut, not the first problem listed (it named
+    an unreadable line as the reason the log was incomplete)."""
+    _, _, msgs, ref, _ = clean
+    path = _write(msgs, tmp_path / "x.csv")
+    lines = path.read_text().split("\n")
+    lines[5:5] = ["garbage,line"] * 3
+    path.write_text("\n".join(lines).rstrip("\n")[:-3])
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert not summary.complete and summary.bad_lines == 3
+    assert "unreadable" in summary.problems[0]
+    assert "no line end" in summary.stop_reason and summary.stop_reason in summary.problems

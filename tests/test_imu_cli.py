@@ -100,6 +100,8 @@ def test_truncated_log_needs_partial(tmp_path, drive, capsys):
     msg = _run_error(["can", str(cut), "--config", str(cfg), "--out", str(out), "--quiet"], capsys)
     assert "truncated" in msg and "nothing written" in msg and "--partial" in msg
     assert not out.exists(), "never a partial output file that looks complete"
+    msg = _run_error(["can", str(cut), "--config", str(cfg), "--out", str(out), "--partial", "--quiet"], capsys)
+    assert "--partial needs a .parquet output" in msg and not out.exists()   # a CSV has no complete=false
     out_pq = tmp_path / "imu.parquet"
     assert main(["can", str(cut), "--config", str(cfg), "--out", str(out_pq), "--partial", "--quiet"]) == 0
     assert "reading stopped early" in capsys.readouterr().err

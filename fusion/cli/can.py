@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     print(f"decoded in {elapsed:.2f} s ({summary.frames_read / max(elapsed, 1e-9):,.0f} frames/s)")
     if not summary.complete and not args.partial:
-        why = summary.problems[0] if summary.problems else "reading stopped early"
+        why = summary.stop_reason or "reading stopped early"
         raise InputError(f"{args.log}: {why}; nothing written (--partial writes the {summary.samples} samples read)")
     if not summary.complete:
         print(f"warning: {args.log}: reading stopped early; {out} holds the first {summary.samples} samples "

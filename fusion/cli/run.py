@@ -156,9 +156,9 @@ def _run(args: argparse.Namespace) -> int:
         warnings.append("no pitch-rate channel: pitch rate reconstructed as yaw rate * tan(roll), less a "
                         "modelled pitch rate it leaves out")
     if not imu.attrs.get("complete", True):
-        problems = imu.attrs.get("summary", {}).get("problems") or ["truncated"]
+        why = imu.attrs.get("summary", {}).get("stop_reason") or "truncated"
         end = imu["t_s"].iloc[-1] - imu["t_s"].iloc[0]
-        warnings.append(f"{files.can_log}: log incomplete, read up to {end:.1f} s ({problems[0]}): "
+        warnings.append(f"{files.can_log}: log incomplete, read up to {end:.1f} s ({why}): "
                         "the fused table ends there")
     gaps = imu.attrs.get("gaps", [])
     for source, start_s, duration_s in gaps[:5]:
