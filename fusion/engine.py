@@ -165,8 +165,9 @@ class FusionStream:
     # ---- inputs ----
 
     def add_imu(self, t_s: float, gyro_rad_s, accel_m_s2, speed_m_s: float = math.nan,
-                speed_fresh: bool = False) -> None:
-        """One IMU sample in the vehicle frame (rates rad/s, specific force m/s^2) at ``t_s``.
+                speed_fresh: bool = False) -> bool:
+        """One IMU sample in the vehicle frame (rates rad/s, specific force m/s^2) at ``t_s``;
+        returns whether the filter used it.
 
         A sample with a non-finite time, rate or force is skipped and counted
         (``counts["imu_invalid"]``); one not after the previous sample is a ValueError; one more
@@ -175,7 +176,7 @@ class FusionStream:
         gyro, accel = np.asarray(gyro_rad_s, dtype=float), np.asarray(accel_m_s2, dtype=float)
         if not (math.isfinite(t) and np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
             self.counts["imu_invalid"] += 1
-            return
+            return False
         if self._hist and not t > self._hist[-1].t:
             raise ValueError(f"IMU sample at {t:.6f} s is not after the previous one")
         if self._hist and t - self._hist[-1].t > self.options.max_imu_gap_s:
@@ -198,6 +199,7 @@ class FusionStream:
         self._hist.append(sample)
         while self._hist and sample.t - self._hist[0].t > self.options.history_s:
             self._hist.popleft()
+        return True
 
     def add_vision(self, t_s: float, angles_rad, sigmas_rad, valid: bool = True,
                    curvature_1_m: float = math.nan, lateral_offset_m: float = math.nan,

@@ -176,6 +176,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         table["gyro_bias_y_deg_s"] = table["gyro_bias_y_sigma_deg_s"] = np.nan
     table.loc[~speed_known, "speed_m_s"] = np.nan   # before the first wheel speed the state is a placeholder
     counts = dict(stream.counts)
+    counts["imu_invalid"] += int(bad.sum())     # skipped here, before the stream (no output row)
     counts["vision_after_last_imu"] = int(len(vt) - j)
     if counts["imu_gaps"]:
         warnings.append(f"the IMU samples have {counts['imu_gaps']} gap(s) longer than {options.max_imu_gap_s:g} s: "

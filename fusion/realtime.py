@@ -58,10 +58,10 @@ class LiveFusion:
                                 options_from_table(config.extra.get("vision"), source))
         self.stream = FusionStream(config.imu.position_m, self.has_pitch_rate, fusion_opts)
         self.samples = 0
-        #: IMU samples the decoder released without every gyro and accelerometer value (the
-        #: filter waits for the next complete one), frames not after the previous frame
-        #: (skipped), restarts of the filter on a bus clock that went back.
-        self.counts = dict(incomplete_samples=0, frames_out_of_order=0, clock_restarts=0)
+        #: Frames not after the previous frame (skipped), restarts of the filter on a bus clock
+        #: that went back. (IMU samples the decoder released without every gyro and
+        #: accelerometer value are the stream's ``counts["imu_invalid"]``.)
+        self.counts = dict(frames_out_of_order=0, clock_restarts=0)
         self.warnings: list[str] = []
         if self.settings.estimate_time_offset:
             self.warnings.append("[fusion] estimate_time_offset needs the whole drive and is not done live: "
@@ -78,19 +78,17 @@ class LiveFusion:
             for s in self.decoder.push(msg, received_s):
                 gyro = (s.gyro_x_rad_s, 0.0 if not self.has_pitch_rate else s.gyro_y_rad_s, s.gyro_z_rad_s)
                 accel = (s.accel_x_m_s2, s.accel_y_m_s2, s.accel_z_m_s2)
-                if not (np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
-                    self.counts["incomplete_samples"] += 1   # the filter waits for the next one
-                    continue
                 if not s.t_s > self.stream.t_s and math.isfinite(self.stream.t_s):
                     # the decoder took a new bus clock: nothing carries across but the biases
                     self.stream.restart(clock_reset=True)
                     self._speeds.clear()
                     self._last_frame = (math.nan, math.nan)
                     self.counts["clock_restarts"] += 1
-                self.stream.add_imu(s.t_s, gyro, accel, s.speed_m_s, s.fresh_speed)
+                # an incomplete sample (a value missing) is skipped and counted by the stream;
+                # its wheel speed still dates the frames
+                n += self.stream.add_imu(s.t_s, gyro, accel, s.speed_m_s, s.fresh_speed)
                 if s.fresh_speed and math.isfinite(s.speed_m_s):
                     self._speeds.append((s.t_s, s.speed_m_s))
-                n += 1
             self.samples += n
         return n
 
