@@ -427,3 +427,33 @@ def test_the_plain_bank_column_has_no_value_without_vision(drive, tmp_path):
     assert lost.any() and (~lost).any()          # the tiny drive has lanes on some frames only
     assert fused.loc[lost, "bank_plain_deg"].isna().all()
     assert fused.loc[~lost, "bank_plain_deg"].notna().all()
+
+
+def test_time_offset_estimate_corrects_the_configured_offset(tmp_path):
+    """The bundled sample drive with its frame times 200 ms late on the CAN clock. The estimate
+    is of the correction to the configured offset: configured 0, it finds about -200 ms and
+    applies it (its error on this drive: 14-17 ms, sigma about 46 ms, fusion.timing); configured
+    -200 ms, the correction is not significant and the configured offset stays (the estimate was
+    added to the configured offset as if it were a correction while it was the whole offset: a
+    correct configuration went to -400 ms)."""
+    from fusion.drive import SAMPLE_DRIVE
+
+    d = tmp_path / "drive"
+    shutil.copytree(SAMPLE_DRIVE, d)
+    frames = pd.read_csv(d / "frames.csv", dtype={"t_s": str})
+    frames["t_s"] = [f"{float(t) + 0.2:.9f}" for t in frames["t_s"]]
+    frames.to_csv(d / "frames.csv", index=False)
+    base = (d / "config.toml").read_text()
+    results = {}
+    for configured in (0.0, -0.2):
+        (d / "config.toml").write_text(base.replace("[fusion]\n", f"[fusion]\ncamera_time_offset_s = {configured}\n"))
+        out = tmp_path / f"out{configured}"
+        r = vifusion("run", "--drive", d, "--out", out, "--quiet", "--estimate-time-offset")
+        assert r.returncode == 0, r.stderr
+        results[configured] = json.loads((out / "report" / "summary.json").read_text())
+    first, second = results[0.0], results[-0.2]
+    assert first["time_offset"]["applied"] is True
+    assert first["camera_time_offset_s"] == pytest.approx(-0.2, abs=0.05)
+    assert second["time_offset"]["applied"] is False and second["camera_time_offset_s"] == pytest.approx(-0.2, abs=1e-9)
+    assert abs(second["time_offset"]["offset_s"]) < 2 * second["time_offset"]["sigma_s"]
+    assert any("not applied" in w for w in second["warnings"])

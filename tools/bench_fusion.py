@@ -304,7 +304,7 @@ OFFSET_SHIFTS_S = (0.0, 0.1)
 
 def time_offsets(drive: Path, run_dir: Path) -> list:
     """``[fusion] estimate_time_offset`` on the run's vision with the frame times shifted by each
-    of :data:`OFFSET_SHIFTS_S`: (shift, estimate or its reason, peak correlation)."""
+    of :data:`OFFSET_SHIFTS_S`: (shift, estimate or its reason, its sigma, peak correlation)."""
     from fusion.config import load_config
     from fusion.timing import estimate_camera_offset
     from imu import read_log
@@ -315,7 +315,7 @@ def time_offsets(drive: Path, run_dir: Path) -> list:
     out = []
     for shift in OFFSET_SHIFTS_S:
         est = estimate_camera_offset(vision.assign(t_s=vision["t_s"] + shift), imu)
-        out.append((shift, est.offset_s if est.ok else est.reason, est.correlation))
+        out.append((shift, est.offset_s if est.ok else est.reason, est.sigma_s, est.correlation))
     return out
 
 
@@ -469,8 +469,9 @@ def main(argv=None) -> int:
     print("Camera-to-CAN offset estimated from the data (vision roll rate against gyro roll rate), the frame times")
     print("shifted by each of these; the correct estimate is minus the shift [ms]")
     for name, ests in offset_rows:
-        cells = "   ".join(f"{1e3 * sh:+5.0f}: " + (f"{1e3 * e:+7.1f} (r {r:.2f})" if isinstance(e, float) else f"none ({e})")
-                           for sh, e, r in ests)
+        cells = "   ".join(f"{1e3 * sh:+5.0f}: " + (f"{1e3 * e:+7.1f} +- {1e3 * s:.1f} (r {r:.2f})"
+                                                    if isinstance(e, float) else f"none ({e})")
+                           for sh, e, s, r in ests)
         print(f"{name:<26} {cells}")
     print()
     print(f"{'drive':<26} {'duration':>9} {'vifusion run':>13} {'fixed':>7} {'rest / duration':>16} "

@@ -191,11 +191,17 @@ def _run(args: argparse.Namespace) -> int:
 
     time_offset = None
     if args.estimate_time_offset or settings.estimate_time_offset:
-        est = estimate_camera_offset(vision, imu)
-        time_offset = {"offset_s": est.offset_s, "correlation": est.correlation, "frames": est.n_frames,
-                       "reason": est.reason}
-        if est.ok:
+        # the correction to the configured offset, applied where the data tell it from zero
+        est = estimate_camera_offset(vision.assign(t_s=vision["t_s"] + offset_s), imu)
+        applied = est.ok and abs(est.offset_s) > OFFSET_SIGNIFICANCE * est.sigma_s
+        time_offset = {"offset_s": est.offset_s, "sigma_s": est.sigma_s, "correlation": est.correlation,
+                       "frames": est.n_frames, "reason": est.reason, "configured_s": offset_s, "applied": applied}
+        if applied:
             offset_s += est.offset_s
+        elif est.ok:
+            warnings.append(f"camera time offset estimate {1e3 * est.offset_s:+.1f} +- {1e3 * est.sigma_s:.1f} ms "
+                            f"from the configured {1e3 * offset_s:g} ms is within {OFFSET_SIGNIFICANCE:g} sigma of "
+                            "it: not applied")
         else:
             warnings.append(f"camera time offset not estimable: {est.reason}")
 
@@ -254,6 +260,9 @@ def _count_frames(video: Path) -> int:
 #: Share of valid vision frames under which the run warns (lanes lost, a camera config that
 #: does not fit the video).
 VISION_VALID_WARN = 0.5
+#: An estimated camera-offset correction is applied when it is more than this many of its
+#: sigmas from zero (fusion.timing).
+OFFSET_SIGNIFICANCE = 2.0
 
 #: What a run writes into its ``--out`` folder: an existing folder holding only these is replaced.
 RUN_OUTPUTS = frozenset({"vision.csv", "fused.csv", "calibration.toml", "report"})
