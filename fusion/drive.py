@@ -109,16 +109,23 @@ TRUTH_COLUMNS = ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_wo
 
 
 def read_truth(path: Path | None, columns: tuple[str, ...] = TRUTH_COLUMNS) -> pd.DataFrame | None:
-    """A truth table with ``columns`` (at least ``t_s``, two or more increasing times)."""
+    """A truth table: ``t_s`` (two or more increasing times) and at least one other of ``columns``,
+    each numeric. The simulator writes them all; a real recording's reference may have only
+    some (an INS gives ``roll_world_deg`` and ``pitch_world_deg``, no road angles): what it has
+    is scored, the rest is not (NEES needs all four road angles)."""
     if path is None:
         return None
     try:
         df = pd.read_csv(path)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: not a CSV file ({' '.join(str(e).split())})") from None
-    missing = [c for c in columns if c not in df.columns]
-    if missing:
-        raise InputError(f"{path}: not a truth table: no {', '.join(missing)} column (INTERFACE.md, drive on disk)")
+    have = [c for c in columns[1:] if c in df.columns]
+    if "t_s" not in df.columns or (len(columns) > 1 and not have):
+        need = "a t_s column" if "t_s" not in df.columns else f"any of {', '.join(columns[1:])}"
+        raise InputError(f"{path}: not a truth table: no {need} (INTERFACE.md, drive on disk)")
+    text = [c for c in have if not pd.api.types.is_numeric_dtype(df[c])]
+    if text:
+        raise InputError(f"{path}: truth column {text[0]} is not numeric")
     t = pd.to_numeric(df["t_s"], errors="coerce").to_numpy(dtype=float)
     if len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         raise InputError(f"{path}: t_s must hold two or more finite, increasing times")

@@ -187,6 +187,31 @@ def test_truth_of_another_clock_is_an_error(copy, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_truth_of_world_angles_only_is_scored(tmp_path):
+    """A reference with only the attitude relative to level (an INS, as KITTI's OXTS): its
+    angles are scored, the road angles and NEES are not (it was refused for lacking roll_deg).
+    The same figures as from the full truth: the columns are the same numbers. (The bundled
+    12 s drive: the tiny one is too short to be scored.)"""
+    from fusion.drive import SAMPLE_DRIVE
+
+    copy = tmp_path / "drive"
+    shutil.copytree(SAMPLE_DRIVE, copy)
+    full = tmp_path / "full"
+    assert vifusion("run", "--drive", copy, "--out", full, "--quiet").returncode == 0
+    truth = pd.read_csv(copy / "truth.csv")[["t_s", "roll_world_deg", "pitch_world_deg"]]
+    truth.to_csv(tmp_path / "ins.csv", index=False, float_format="%.12g")
+    out = tmp_path / "out"
+    r = vifusion("run", "--video", copy / "video.mp4", "--frames", copy / "frames.csv", "--can", next(copy.glob("can.*")),
+                 "--config", copy / "config.toml", "--truth", tmp_path / "ins.csv", "--out", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((out / "report" / "summary.json").read_text())
+    ref = json.loads((full / "report" / "summary.json").read_text())
+    fused = summary["rmse_deg"]["fused"]
+    assert set(fused) == {"roll_world", "pitch_world"} and "consistency" not in summary
+    for a in ("roll_world", "pitch_world"):
+        assert fused[a] == pytest.approx(ref["rmse_deg"]["fused"][a], abs=1e-6)
+
+
 def test_video_shorter_than_frames_csv_is_a_warning(copy, tmp_path):
     frames = pd.read_csv(copy / "frames.csv")
     extra = pd.DataFrame({"frame": np.arange(30, 40), "t_s": frames["t_s"].iloc[-1] + np.arange(1, 11) / 15.0})
