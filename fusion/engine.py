@@ -186,9 +186,11 @@ class FusionStream:
         self._n += 1
         self.counts["imu"] += 1
         if not self._hist:
-            # the first sample (or the first after a gap): results from before the history
-            # window are as stale as a late result that old
-            self._drop_pending(lambda p: p.t_s < t - self.options.history_s)
+            # the first sample (or the first after a gap): there is no state before it, so a
+            # result from before it is applied at it. Up to max_imu_gap_s earlier (what the filter
+            # propagates across) that is fine; older ones are dropped as too old (up to history_s
+            # = 1 s before, a second-old roll was applied as the current one)
+            self._drop_pending(lambda p: p.t_s < t - min(self.options.max_imu_gap_s, self.options.history_s))
         # Vision results whose time this sample passes are applied inside the interval
         # (the queue is kept in time order: the first k).
         k = bisect.bisect_right(self._pending, t, key=_time_of)

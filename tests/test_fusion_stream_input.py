@@ -116,14 +116,18 @@ def test_the_same_result_twice_counts_once(drive):
 def test_results_far_ahead_or_from_before_the_imu_are_not_applied(drive):
     """A result dated more than ``history_s`` after the newest IMU sample (frame times in ms
     instead of s) is counted and dropped instead of waiting in the queue for good; results
-    from more than ``history_s`` before the first IMU sample (the camera started earlier, the
-    side stand's 20 deg of roll) are dropped as too old, not applied at the first sample."""
+    from more than ``max_imu_gap_s`` (0.2 s) before the first IMU sample (the camera started
+    earlier, the side stand's 20 deg of roll) are dropped as too old, not applied at the first
+    sample (up to ``history_s``, 1 s, were); those within it are applied there."""
     s = FusionStream(drive.lever_arm_m, options=OPTIONS)
-    for t in np.arange(-10.0, -1.5, 1 / 30):
-        s.add_vision(t, np.radians([20.0, 0.0, 0.0]), np.radians([0.1] * 3))
     imu = drive.imu[drive.imu["t_s"] < 3.0]
+    t0 = float(imu["t_s"].iloc[0])
+    frames = t0 - 0.199 - np.arange(294)[::-1] / 30     # 9.8 s of frames, the last 0.199 s before
+    assert t0 - frames[-1] < 0.2 < t0 - frames[-2]
+    for t in frames:
+        s.add_vision(t, np.radians([20.0, 0.0, 0.0]), np.radians([0.1] * 3))
     _feed(s, imu.iloc[:10])
-    assert s.counts["vision_too_old"] == 255 and s.counts["vision_used"] == 0
+    assert s.counts["vision_too_old"] == 293 and s.counts["vision_used"] + s.counts["vision_rejected"] == 1
     s.add_vision(1000.0 * imu["t_s"].iloc[9], np.radians([0.0, 0.0, 0.0]), np.radians([0.1] * 3))
     assert s.counts["vision_future"] == 1 and not s._pending
 
