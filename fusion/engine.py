@@ -29,8 +29,8 @@ import numpy as np
 
 from vision.frames import wrap_angle
 
-from .ekf import (DIM_X, AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, road_ahead_as_seen,
-                  vision_hx, vision_jacobian)
+from .ekf import (DIM_X, AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, accel_r_scale,
+                  road_ahead_as_seen, vision_hx, vision_jacobian)
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 
@@ -40,6 +40,8 @@ __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 _VISION_GAP_S = 0.1
 
 _time_of = attrgetter("t_s")
+#: IMU intervals whose median is taken as the sample period (the accelerometer noise's rate).
+_PERIOD_SAMPLES = 20
 #: A vision result dated further ahead of the newest IMU sample (and of history_s) is a clock
 #: mix-up, not a result the IMU has yet to reach, s.
 _MAX_VISION_LEAD_S = 1.0
@@ -120,6 +122,7 @@ class _ImuSample:
     gyro_dot: np.ndarray = None
     roll_prop: float = 0.0
     applied: tuple = ()   # measurements applied in the interval ending here (for replays)
+    r_scale: float = 1.0  # factor on the accelerometer noise variance (NoiseModel.accel_meas_rate_hz)
     state: tuple = ()     # the stream's own state after this sample (FusionStream._snapshot)
 
 
@@ -145,6 +148,10 @@ class FusionStream:
         self._hist: deque[_ImuSample] = deque()
         self._pending: list[VisionMeasurement | RollAhead] = []   # waiting for the IMU to pass their time
         self._n = 0
+        #: the first IMU intervals (s): their median is the sample period that scales the
+        #: accelerometer noise to the IMU's rate (fixed once known, so that replays agree)
+        self._intervals: list[float] = []
+        self._r_scale = accel_r_scale(options.noise, 1.0 / options.noise.accel_meas_rate_hz * options.gravity_every)
         self._initialized = False
         self._vision_initialized = False
         self._lane_fit = (0.0, -math.inf)   # lateral offset m, time of the last lane fit
@@ -182,7 +189,11 @@ class FusionStream:
         if self._hist and t - self._hist[-1].t > self.options.max_imu_gap_s:
             self.restart()
             self.counts["imu_gaps"] += 1
-        sample = _ImuSample(t, gyro, accel, float(speed_m_s), bool(speed_fresh) and math.isfinite(speed_m_s), self._n)
+        if self._hist and len(self._intervals) < _PERIOD_SAMPLES:
+            self._intervals.append(t - self._hist[-1].t)
+            self._r_scale = accel_r_scale(self.options.noise, float(np.median(self._intervals)) * self.options.gravity_every)
+        sample = _ImuSample(t, gyro, accel, float(speed_m_s), bool(speed_fresh) and math.isfinite(speed_m_s), self._n,
+                            r_scale=self._r_scale)
         self._n += 1
         self.counts["imu"] += 1
         if not self._hist:
@@ -336,7 +347,7 @@ class FusionStream:
         if s.speed_fresh:
             self._speed_update(s.speed)
         if self._speed_initialized and s.index % self.options.gravity_every == 0:
-            if not self.ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate):
+            if not self.ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate, s.r_scale):
                 self.counts["gravity_rejected"] += 1
 
     def _propagate(self, t0: float, t1: float, gyro, imu_index: int, sample: _ImuSample | None = None) -> None:
@@ -358,7 +369,7 @@ class FusionStream:
             gravity = sample.index % self.options.gravity_every == 0
             self._road_rate, ok_v, ok_g = ekf.propagate_and_update(
                 u, sample.speed if sample.speed_fresh else math.nan, sample.accel, sample.gyro, sample.gyro_dot,
-                gravity)
+                gravity, sample.r_scale)
             if sample.speed_fresh:
                 self._speed_rejected_in_row = 0 if ok_v else self._speed_rejected_in_row + 1
                 self.counts["speed_rejected"] += not ok_v

@@ -65,6 +65,7 @@ _NOISE_KEYS = {
     "vision_sigma_floor_deg": ("vision_sigma_floor_rad", math.radians, 0.0, 90.0),
     "vision_road_model_error": ("vision_road_model_error", float, 0.0, 100.0),
     "gate_probability": ("gate_probability", float, 0.5, 0.999999),
+    "accel_noise_rate_hz": ("accel_meas_rate_hz", float, 0.1, 10000.0),
 }
 
 

@@ -612,3 +612,23 @@ def test_road_ahead_as_seen_matches_the_simulated_road():
             # the twist: how that roll changes with the distance (a central difference over 1 m)
             slope = _roll_to_cross_section_deg(road, s, d, L + 0.5) - _roll_to_cross_section_deg(road, s, d, L - 0.5)
             assert abs(slope + np.degrees(twist)) <= tol * abs(np.degrees(twist)) + 1e-4, (kappa, L, slope, twist)
+
+
+def test_accelerometer_allowance_is_the_same_at_any_imu_rate(drive):
+    """The accelerometer allowance (NoiseModel.accel_meas_m_s2, the default's real-car residual)
+    stands for motion the model leaves out, whose 1 s average does not depend on the IMU's rate.
+    The same drive at 100 Hz and every 4th sample (25 Hz), IMU only: the world roll's sigma is
+    the same within 25 % (measured: ratio 1.14, the rest from the coarser gyro integration; per
+    sample at any rate it was 1.63, the 25 Hz run trusting gravity four times less), and both
+    runs' errors stay within 2 sigma RMS."""
+    imu = drive.imu[drive.imu["t_s"] < 30.0]
+    opts = FusionOptions(noise=NoiseModel(init_accel_bias_m_s2=0.001))
+    sig, err = {}, {}
+    for step in (1, 4):
+        f = fuse(imu.iloc[::step].reset_index(drop=True), None, lever_arm_m=drive.lever_arm_m, options=opts).fused
+        late = f["t_s"] > 10.0
+        sig[step] = float(np.median(f.loc[late, "roll_world_sigma_deg"]))
+        e = f.loc[late, "roll_world_deg"] - np.interp(f.loc[late, "t_s"], drive.truth["t_s"], drive.truth["roll_world_deg"])
+        err[step] = float(np.sqrt(np.mean(e**2)))
+        assert err[step] < 2 * sig[step], (step, err[step], sig[step])
+    assert sig[4] / sig[1] == pytest.approx(1.0, abs=0.25), sig

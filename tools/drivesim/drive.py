@@ -150,6 +150,7 @@ def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps
     bias_sigma_v = np.abs(ImuMount(imu.axes, imu.position_m).R_v_from_imu) @ np.abs(np.asarray(imu.accel_bias_m_s2))
     lines += ["", "[fusion]", f"gyro_noise_deg_s = {max(imu.gyro_noise_deg_s, 1e-3)!r}",
               "accel_noise_m_s2 = [" + ", ".join([repr(max(imu.accel_noise_m_s2, 1e-3))] * 3) + "]",
+              f"accel_noise_rate_hz = {imu.rate_hz!r}",
               "accel_bias_sigma_m_s2 = [" + ", ".join(repr(max(float(b), 0.005)) for b in bias_sigma_v) + "]",
               ""]
     return "\n".join(lines)
