@@ -12,12 +12,12 @@ the estimate against the shift, and its sigma): 60 s drive 0.6-0.7 ms (sigma 1.5
 drive 5.5-6.5 ms (38-44), bundled 640x360 sample drive 14-17 ms (46-47); on the three others it
 declines (peak correlation under 0.6, or the roll barely moves). ``vifusion run`` applies an
 estimate only where it is more than twice its sigma away from the configured offset (it estimates
-the correction to that offset): a -14 +- 46 ms on a correct clock is no reason to move it. The
-road's own bank rate is part of the vision roll rate
-(the roll is relative to the road), which biases the lag where runoffs dominate the roll; a
-high-pass of both rates (moving average over 1 or 2 s removed) to suppress it lowered the peak
-correlation below the threshold on four of the six drives and moved the 60 s drive's estimate from
--0.6 to +4.4 ms: not kept.
+the correction to that offset): a -14 +- 46 ms on a correct clock is no reason to move it.
+
+The road's own bank rate is part of the vision roll rate (the roll is relative to the road),
+which biases the lag where runoffs dominate the roll. A high-pass of both rates (their moving
+average over 1 or 2 s removed) to suppress it lowered the peak correlation below the threshold
+on four of the six drives and moved the 60 s drive's estimate from -0.6 to +4.4 ms: not kept.
 
 The returned ``offset_s`` is what to add to the frame times (``frames.csv``) to put them on
 the CAN clock, i.e. the ``[fusion] camera_time_offset_s`` of the config.
