@@ -76,6 +76,29 @@ class _SourceCount:
     invalid: dict = field(default_factory=dict)
     out_of_range: dict = field(default_factory=dict)
     first_t: float = math.nan
+    #: frames on the current bus clock, and the time spans and frame intervals of the clocks
+    #: before it (a clock reset starts a new span: the summary's rates do not mix clocks)
+    clock_frames: int = 0
+    span_before_s: float = 0.0
+    intervals_before: int = 0
+
+    def new_clock(self) -> None:
+        if self.clock_frames:
+            self.span_before_s += self.last_t - self.first_t
+            self.intervals_before += self.clock_frames - 1
+        self.clock_frames = 0
+        self.last_t = -math.inf
+
+    def span_s(self) -> float:
+        """Time covered on all clocks so far, s."""
+        return self.span_before_s + (self.last_t - self.first_t if self.clock_frames else 0.0)
+
+    def intervals(self) -> int:
+        return self.intervals_before + max(self.clock_frames - 1, 0)
+
+
+def _rate(intervals: int, span_s: float) -> float:
+    return intervals / span_s if intervals > 0 and span_s > 0 else math.nan
 
 
 class StreamDecoder:
@@ -130,8 +153,7 @@ class StreamDecoder:
         self.unmapped_frames = 0
         self.error_frames = 0
         self.samples = 0
-        self._first_sample_t = math.nan
-        self._last_sample_t = math.nan
+        self._samples = _SourceCount()     # the samples' time spans, per bus clock
 
     # --- frame acceptance (same order as imu.log_source._finish) ---------------------------
     def push(self, msg: can.Message, received_s: float | None = None) -> list[ImuSample]:
@@ -206,9 +228,10 @@ class StreamDecoder:
                 continue
             if sc.frames and math.isfinite(sc.last_t) and t - sc.last_t > self.gap_limit_s and len(sc.gaps) < _MAX_GAPS:
                 sc.gaps.append(Gap(src.name, sc.last_t, t - sc.last_t))
-            if not sc.frames:
+            if not sc.clock_frames:
                 sc.first_t = t
             sc.frames += 1
+            sc.clock_frames += 1
             sc.last_t = t
             for j, p in enumerate(src.signals):
                 key = "valid" if valid_row[j] else "invalid"
@@ -231,7 +254,8 @@ class StreamDecoder:
         self._pending.clear()
         self._speed.clear()
         for sc in self._src:
-            sc.last_t = -math.inf
+            sc.new_clock()
+        self._samples.new_clock()
         self._last_t = -math.inf
 
     # --- alignment (same rule as imu.samples.align) ------------------------------------------
@@ -311,9 +335,10 @@ class StreamDecoder:
         vals["speed_m_s"] = speed
         vals["fresh_speed"] = bool(fresh_speed)
         self.samples += 1
-        if self.samples == 1:
-            self._first_sample_t = T
-        self._last_sample_t = T
+        if not self._samples.clock_frames:
+            self._samples.first_t = T
+        self._samples.clock_frames += 1
+        self._samples.last_t = T
         return ImuSample(received_s=released_s, **vals)
 
     def expire(self, now_s: float | None = None, margin_s: float | None = None) -> list[ImuSample]:
@@ -352,10 +377,8 @@ class StreamDecoder:
             sc = self._src[si]
             counts = self._msg_counts[s.frame_id] if s.frame_id not in seen else {}
             seen.add(s.frame_id)
-            span = sc.last_t - sc.first_t
             sources.append(SourceStats(
-                name=s.name, frame_id=s.id_text, frames=sc.frames,
-                rate_hz=(sc.frames - 1) / span if sc.frames > 1 and span > 0 else math.nan,
+                name=s.name, frame_id=s.id_text, frames=sc.frames, rate_hz=_rate(sc.intervals(), sc.span_s()),
                 duplicates=sc.duplicates, unaligned=sc.unaligned, gaps=tuple(sc.gaps), **counts,
             ))
         value_col = dict(zip(CHANNELS, VALUE_COLUMNS))
@@ -363,7 +386,7 @@ class StreamDecoder:
         channels = []
         for si, s in enumerate(self.plan.sources):
             sc = self._src[si]
-            span = sc.last_t - sc.first_t
+            span = sc.span_s()
             for p in s.signals:
                 n_ok = sc.valid.get(p.channel, 0)
                 channels.append(ChannelStats(
@@ -372,11 +395,11 @@ class StreamDecoder:
                     out_of_range=sc.out_of_range.get(p.channel, 0),
                     rate_hz=n_ok / span if n_ok > 1 and span > 0 else math.nan,  # valid values per second
                 ))
-        span = self._last_sample_t - self._first_sample_t
+        span = self._samples.span_s()
         return Summary(
             log=log, frames_read=self.frames_read, frames_mapped=self.frames_mapped, samples=self.samples,
             duration_s=float(span) if self.samples else 0.0,
-            sample_rate_hz=(self.samples - 1) / span if self.samples > 1 and span > 0 else math.nan,
+            sample_rate_hz=_rate(self._samples.intervals(), span),
             clock=self.plan.sources[self._clock].name, sources=tuple(sources), channels=tuple(channels),
             unavailable=self.unavailable, unknown_ids=dict(self.unknown_ids),
             unmapped_frames=self.unmapped_frames, error_frames=self.error_frames,

@@ -113,3 +113,31 @@ def test_twins_on_messy_streams(tmp_path, frames, range_check):
         col = [c for c in COLUMNS if c.startswith(ch) and not c.startswith("fresh")][0]
         assert np.array_equal(table[f"fresh_{ch}"].to_numpy(), table[col].notna().to_numpy())
     assert np.all(np.diff(table["t_s"].to_numpy()) > 0)
+
+
+def test_live_summary_after_a_clock_reset(tmp_path):
+    """The same 3 s recording twice, the bus clock restarting at 0 in between (a logger
+    restart): the decoder takes the new clock, and its summary covers both stretches, 6 s at
+    the IMU's 100 Hz, with per-source rates of their 100 / 50 Hz (the spans were taken from the
+    first clock's start to the second clock's end: -1.7e9 s, and NaN rates)."""
+    imu, speed = sim_imu(duration_s=3.0, seed=4)
+    path = tmp_path / "drive.blf"
+    write_can_log(path, imu, speed)
+    _, one = read_log(path, sim_mapping(), MOUNT_FRD)
+    msgs = list(iter_messages(path))
+    t0 = msgs[0].timestamp
+    again = [can.Message(timestamp=m.timestamp - t0, arbitration_id=m.arbitration_id, data=m.data,
+                         is_extended_id=m.is_extended_id, channel=m.channel) for m in msgs]
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    out = []
+    for m in msgs + again:
+        out += dec.push(m)
+    out += dec.flush()
+    s = dec.summary()
+    assert dec.clock_resets == 1
+    # less the new clock's first frames, taken as backwards until 20 in a row say it is new
+    # (CLOCK_RESET_AFTER: about 70 ms of this bus)
+    assert 2 * one.duration_s - 0.1 < s.duration_s <= 2 * one.duration_s
+    assert s.sample_rate_hz == pytest.approx(one.sample_rate_hz, rel=0.01)
+    for a, b in zip(s.sources, one.sources):
+        assert a.rate_hz == pytest.approx(b.rate_hz, rel=0.02), a.name
