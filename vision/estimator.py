@@ -754,7 +754,6 @@ class Estimator:
                 dbg.image_lines = lines_img
             H, x0 = self.surface_of(phi, theta, psi)
             model = self._model(edges, _R_o_from_cp(phi, theta, psi), H, shape_deg, bev.grid)
-            shape_free = model.shape_free
             x_rows = self._cross_x(model)
             if x_rows is None:
                 return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
@@ -768,8 +767,6 @@ class Estimator:
                 tw = self.twist_map.profile(axis) if use_twist and axis is not None else None
                 model = self._model(edges, R, H, shape_deg, bev.grid, select=it == 0, zeta=sag, x0=x0,
                                     zeta_prior=zeta0, twist=tw)
-                if it == 0:
-                    shape_free = model.shape_free  # straight chosen: the full shape, for its sigma
                 shape_deg = model.c.size + 1       # the degree chosen in the first pass is kept
                 if use_twist:
                     axis = _centre_axis(model)
@@ -837,8 +834,7 @@ class Estimator:
         centres = [all_centres[0], all_centres[-1]]
         offsets = tuple(c + float(cam_off[1]) for c in all_centres)
         curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
-        curvature_sigma = self._curvature_sigma(model if model.c.size or shape_free is None else shape_free,
-                                                x_c, n_lines, curvature)
+        curvature_sigma = self._curvature_sigma(model, x_c, n_lines, curvature)
         x_mean = float(np.mean(x_rows))
         lookahead = x_mean - x_c
         span = (float(x_rows.min()) - x_c, float(x_rows.max()) - x_c)
@@ -1127,10 +1123,14 @@ class Estimator:
 
     def _curvature_sigma(self, model: LaneModel, x_c: float, n_lines: int, curvature: float) -> float:
         """1-sigma of the reported curvature: the lane model's covariance (vertical curvature
-        included) and the model terms of :data:`CURVATURE_MODEL_SIGMA`. Where the first pass
-        chose straight lines for want of a significant shape, the caller passes that pass's
-        full-shape fit (:attr:`LaneModel.shape_free`): the curvature is 0 within its sigma (it was
-        reported 0 +- 0, on 40 % of the 60 s drive's frames, a claim no fit supports)."""
+        included) and the model terms of :data:`CURVATURE_MODEL_SIGMA`.
+
+        Where the fit chose straight lines (no shape term significant) this is 0 +- 0: the sigma
+        given that choice, not the curvature's (the fusion floors it at 3e-4 1/m). Tried
+        (2026-11-26, docs/fusion-notes.md): 0 with the full shape's sigma, and the full shape's
+        curvature with its sigma. Both moved the right-hand 7 deg drive's fused yaw from 0.089
+        to 0.125 deg (over issue 5's 0.1): at its curve entry the straight frames' curvature
+        and yaw errors cancel in the filter, and a different curvature there breaks that."""
         if not model.c.size:
             fit = 0.0
         else:

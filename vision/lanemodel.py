@@ -88,9 +88,6 @@ class LaneModel:
     linear: tuple | None = None
     #: The priors on ``dzeta`` applied since the fit, ``(index, gain)`` each (:meth:`with_dzeta_prior`).
     prior_gains: tuple = ()
-    #: When the selection chose straight lines (no shape term significant), the fit with the full
-    #: shape: the curvature is then 0 within its curvature's 1-sigma, not exactly 0.
-    shape_free: "LaneModel | None" = None
 
     def __post_init__(self) -> None:
         if self.line_scale is None:
@@ -406,10 +403,7 @@ def fit_lane_model_points(x: np.ndarray, y: np.ndarray, counts: np.ndarray, edge
         m = _fit(pts, m.c.size, rows_per_m)
     # A curve keeps its full shape: the rate of change of curvature (clothoid) is rarely
     # significant on its own, but leaving it out biases the tangent at the vehicle.
-    if m.c.size >= 1:
-        return full
-    m.shape_free = full
-    return m
+    return full if m.c.size >= 1 else m
 
 
 class _Points:
