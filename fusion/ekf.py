@@ -255,8 +255,10 @@ class NoiseModel:
     #: ``gravity_every``) the filter scales them to the same 1 s average, ``R = sigma^2 f / f_ref``
     #: (:meth:`AttitudeEKF.update_gravity`'s ``r_scale``): the residual is motion, whose 1 s
     #: average does not depend on how often it is sampled. Per sample at any rate, KITTI's 10 Hz
-    #: OXTS got a third of the 1 s allowance's weight: roll sigma 0.48-0.85 deg for errors of
-    #: 0.11 deg RMS.
+    #: OXTS got 0.3 m/s^2 laterally against its own residual of 0.10 per sample; scaled, 0.095:
+    #: roll sigma 0.48-0.85 -> 0.34-0.66 deg, roll error 0.110 -> 0.152 deg RMS (its mean -0.07
+    #: -> -0.12: the filter follows the lateral accelerometer more over the 9 s scored), pitch
+    #: 0.053 -> 0.049; comma (104 Hz) roll 0.494 -> 0.477 (README, "Fusion on real recordings").
     accel_meas_m_s2: tuple[float, float, float] = (0.5, 0.3, 1.6)
     accel_meas_rate_hz: float = 100.0
     speed_meas_m_s: float = 0.05
