@@ -76,3 +76,41 @@ def test_results_out_of_order_give_the_in_order_estimate(drive):
     assert shuffled.counts["vision_late"] > 100
     np.testing.assert_allclose(shuffled.ekf.x, on_time.ekf.x, atol=1e-9)
     np.testing.assert_allclose(shuffled.ekf.P, on_time.ekf.P, atol=1e-12)
+
+
+def test_a_result_stamped_at_the_newest_sample_equals_the_in_time_run(drive):
+    """A vision result whose capture time is exactly the newest IMU sample's, handed in after
+    that sample (the camera and the IMU share a trigger): applied at that sample as if it had
+    come before it; the state equals the run where it came first, to rounding (its snapshot
+    was the one before the sample, a whole interval early, until a fix of 2026-11-25)."""
+    imu = drive.imu.iloc[:400]
+    t = imu["t_s"].to_numpy()
+    vis = drive.vision[drive.vision["t_s"] < t[-1]]
+    # the frames moved onto IMU sample times
+    k = np.searchsorted(t, vis["t_s"].to_numpy())
+    stamps = t[np.clip(k, 0, len(t) - 1)]
+
+    def run(after: bool):
+        s = FusionStream(drive.lever_arm_m, options=FusionOptions())
+        j = 0
+        for i, row in enumerate(imu.itertuples()):
+            def hand_in(limit):
+                nonlocal j
+                while j < len(stamps) and stamps[j] <= limit:
+                    p = vis.iloc[j]
+                    s.add_vision(stamps[j], np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]), np.radians([0.1] * 3),
+                                 True, p.curvature_1_m, p.lateral_offset_m)
+                    j += 1
+            if not after:
+                hand_in(row.t_s)
+            s.add_imu(row.t_s, [row.gyro_x_rad_s, row.gyro_y_rad_s, row.gyro_z_rad_s],
+                      [row.accel_x_m_s2, row.accel_y_m_s2, row.accel_z_m_s2], row.speed_m_s, row.fresh_speed)
+            if after:
+                hand_in(row.t_s)
+        return s
+
+    before, after = run(False), run(True)
+    assert after.counts["vision_late"] >= 100 and before.counts["vision_late"] == 0
+    assert after.counts["vision_used"] == before.counts["vision_used"] > 100
+    np.testing.assert_allclose(after.ekf.x, before.ekf.x, atol=1e-9)
+    np.testing.assert_allclose(after.ekf.P, before.ekf.P, atol=1e-12)
