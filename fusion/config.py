@@ -200,6 +200,7 @@ def parse_can(t: Table, base_dir: Path) -> CanMapping | None:
     window = t.get("align_window_s", "float", 0.002, min=1e-6)
     range_check = t.get("range_check", "bool", True)
     pad_short = t.get("pad_short_frames", "bool", False)
+    reorder = t.get("reorder_tolerance_s", "float", 0.0, min=0.0, max=1.0)
     channel = t.get("channel", "str" if isinstance(t.data.get("channel"), str) else "int", None)
     signals_t = t.sub("signals", required=True)
     signals = {k: signals_t.get(k, "str") for k in list(signals_t.data)}
@@ -209,7 +210,7 @@ def parse_can(t: Table, base_dir: Path) -> CanMapping | None:
     dbc_path = Path(dbc) if Path(dbc).is_absolute() else base_dir / dbc
     return _build(t.source, "can", lambda: CanMapping(
         dbc_path, signals, units, gap, align_window_s=window, range_check=range_check,
-        pad_short_frames=pad_short, channel=channel))
+        pad_short_frames=pad_short, channel=channel, reorder_tolerance_s=reorder))
 
 
 def parse_video(t: Table) -> VideoTiming:

@@ -17,6 +17,7 @@ more, or, on a quiet bus, ``align_window_s`` plus a margin after its clock frame
 
 from __future__ import annotations
 
+import heapq
 import math
 import threading
 import time
@@ -136,6 +137,10 @@ class StreamDecoder:
         self._vmap = vehicle_channel_map(mount)
         self._chan_lock: dict[int, Any] = {}
         self._last_t = -math.inf
+        self._id_last_t: dict[int, float] = {}
+        self._reorder_s = float(self.mapping.reorder_tolerance_s)
+        self._held: list[tuple] = []       # frames held for the reorder tolerance (a heap by time)
+        self._held_n = 0
         self._backwards_in_row = 0
         #: Times the bus clock was taken to have restarted (:data:`CLOCK_RESET_AFTER`).
         self.clock_resets = 0
@@ -207,15 +212,36 @@ class StreamDecoder:
                 return []
         elif len(data) > length:
             counts["excess_length"] = counts.get("excess_length", 0) + 1
-        if t < self._last_t:
+        tol = self._reorder_s
+        out: list[ImuSample] = []
+        if t < self._last_t - tol or t < self._id_last_t.get(aid, -math.inf):
             self._backwards_in_row += 1
             if self._backwards_in_row < CLOCK_RESET_AFTER:
                 counts["backwards"] = counts.get("backwards", 0) + 1
                 return []
+            out = self._release(math.inf)     # the old clock's held frames first
             self._reset_clock()
         self._backwards_in_row = 0
-        self._last_t = t
+        self._last_t = max(self._last_t, t)
+        self._id_last_t[aid] = t
         payload = data[:length].ljust(length, b"\0")
+        if tol <= 0:
+            return out + self._decode(idx, t, payload, received_s)
+        # held until no frame of another ID stamped before it can still be taken
+        heapq.heappush(self._held, (t, self._held_n, idx, payload, received_s))
+        self._held_n += 1
+        return out + self._release(self._last_t - tol)
+
+    def _release(self, t_limit: float) -> list[ImuSample]:
+        """Decode the held frames (reorder tolerance) stamped at or before ``t_limit``, in time order."""
+        out: list[ImuSample] = []
+        while self._held and self._held[0][0] <= t_limit:
+            t, _, idx, payload, received_s = heapq.heappop(self._held)
+            out += self._decode(idx, t, payload, received_s)
+        return out
+
+    def _decode(self, idx: list[int], t: float, payload: bytes, received_s: float) -> list[ImuSample]:
+        """One accepted frame's sources: decoded, counted, aligned."""
         out: list[ImuSample] = []
         for si in idx:
             src = self.plan.sources[si]
@@ -257,6 +283,7 @@ class StreamDecoder:
             sc.new_clock()
         self._samples.new_clock()
         self._last_t = -math.inf
+        self._id_last_t.clear()
 
     # --- alignment (same rule as imu.samples.align) ------------------------------------------
     def _event(self, si: int, t: float, si_row: list, valid_row: list,
@@ -349,6 +376,8 @@ class StreamDecoder:
         now_s = time.perf_counter() if now_s is None else now_s
         margin_s = QUIET_BUS_MARGIN_S if margin_s is None else margin_s
         out = []
+        while self._held and now_s - self._held[0][4] > self._reorder_s + margin_s:   # held too long
+            out += self._release(self._held[0][0])
         while self._open and now_s - self._open[0].received_s > self.window_s + margin_s:
             out.append(self._emit(self._open.popleft(), now_s))
         return out
@@ -356,7 +385,8 @@ class StreamDecoder:
     def flush(self) -> list[ImuSample]:
         """End of stream: emit every open sample; pending frames are unaligned."""
         now_s = time.perf_counter()
-        out = [self._emit(g, now_s) for g in self._open]
+        out = self._release(math.inf)
+        out += [self._emit(g, now_s) for g in self._open]
         self._open.clear()
         for _, sp, _ in self._pending:
             self._src[sp].unaligned += 1
@@ -456,10 +486,12 @@ class LiveSource:
             timeout = wait_max
             if dec._open:
                 timeout = min(wait_max, max(0.0, dec._open[0].received_s + window + QUIET_BUS_MARGIN_S - clock()))
+            if dec._held:
+                timeout = min(timeout, max(0.0, dec._held[0][4] + dec._reorder_s + QUIET_BUS_MARGIN_S - clock()))
             msg = recv(timeout=timeout)
             if msg is not None:
                 yield from dec.push(msg, clock())
-            if dec._open:
+            if dec._open or dec._held:
                 yield from dec.expire(clock())
         yield from dec.flush()
 

@@ -84,6 +84,13 @@ class CanMapping:
         Frames shorter than the DBC length are zero-padded and decoded (counted as padded) when
         True, skipped and counted as wrong length when False. Some loggers drop trailing zero
         bytes (comma2k19's raw arrays).
+    reorder_tolerance_s : float
+        How far a mapped frame's timestamp may lie behind the newest accepted one (of another
+        frame ID) and still be taken, s. 0 (the default): a log is in time order, as one bus's
+        logger writes it. A log merged from several buses (``candump any``, two interfaces)
+        can hold frames of different IDs a little out of order; with a tolerance they are
+        taken in time order (the live decoder holds frames that long before it aligns them:
+        that much latency). Within one frame ID the order must hold.
     channel : int, str or None
         Decode only frames from this bus channel as python-can reports it for the log format
         (``0`` for .asc/.blf, ``"can0"`` for candump .log); None takes every channel but stops
@@ -98,6 +105,7 @@ class CanMapping:
     range_check: bool = True
     pad_short_frames: bool = False
     channel: int | str | None = None
+    reorder_tolerance_s: float = 0.0
 
     def __post_init__(self) -> None:
         for ch, ref in self.signals.items():
@@ -114,6 +122,8 @@ class CanMapping:
             raise ImuConfigError(
                 f"[can] align_window_s must be > 0 and < gap_limit_s = {self.gap_limit_s}, got {self.align_window_s}"
             )
+        if not 0 <= self.reorder_tolerance_s <= 1.0:
+            raise ImuConfigError(f"[can] reorder_tolerance_s must be in 0 .. 1 s, got {self.reorder_tolerance_s}")
         if not any(ch in self.signals for ch in GYRO + ACCEL):
             raise ImuConfigError(
                 f"[can.signals] maps no gyro or accel channel (got {', '.join(self.signals) or 'none'}): "

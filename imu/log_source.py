@@ -582,9 +582,19 @@ def _finish(path: Path, plan: DecodePlan, mount: ImuMount, packed: _Packed, chan
                 keep[rows[glitch]] = False
     idx = np.flatnonzero(keep)
     if len(idx):
+        # behind the newest accepted mapped frame by more than the reorder tolerance, or behind
+        # the newest of its own ID (frames dropped here never raise either maximum)
         tk = t[idx]
         prev_max = np.maximum.accumulate(np.concatenate(([-np.inf], tk[:-1])))
-        back = idx[tk < prev_max]
+        behind = tk < prev_max - mapping.reorder_tolerance_s
+        if mapping.reorder_tolerance_s > 0:
+            ok_idx = idx[~behind]
+            for fid in np.unique(aid[ok_idx]):
+                pos = np.flatnonzero(~behind)[aid[ok_idx] == fid]
+                tf = tk[pos]
+                prev_id = np.maximum.accumulate(np.concatenate(([-np.inf], tf[:-1])))
+                behind[pos[tf < prev_id]] = True
+        back = idx[behind]
         if len(back):
             bmask = np.zeros(n, dtype=bool)
             bmask[back] = True
@@ -593,9 +603,13 @@ def _finish(path: Path, plan: DecodePlan, mount: ImuMount, packed: _Packed, chan
             if len(back) > 10 and len(back) > _MAX_BACKWARDS_FRACTION * len(idx):
                 i0 = int(back[0])
                 jump = float(prev_max[np.searchsorted(idx, i0)] - t[i0])
+                hint = ("" if mapping.reorder_tolerance_s > 0 or np.max(prev_max[behind] - tk[behind]) > 0.1 else
+                        "; if it was merged from several buses, [can] reorder_tolerance_s takes frames of "
+                        "different IDs that far out of order")
                 raise DecodeError(
                     f"{path}: timestamps run backwards for {len(back)} of {len(idx)} mapped frames, first at "
                     f"frame 0x{int(aid[i0]):X} t={t[i0]:.6f} s ({jump:.6f} s back): not one continuous recording"
+                    + hint
                 )
     # decode per source, drop duplicates, align
     frames: list[SourceFrames] = []
