@@ -72,7 +72,9 @@ class LiveFusion:
         self._last_estimate: VisionEstimate | None = None
 
     def push_can(self, msg, received_s: float | None = None) -> int:
-        """One CAN message (python-can ``Message``); returns how many IMU samples it released."""
+        """One CAN message (python-can ``Message``); returns how many IMU samples it released
+        that the filter used (a sample missing a gyro or accelerometer value is skipped and
+        counted in ``stream.counts["imu_invalid"]``)."""
         n = 0
         with self._lock:
             for s in self.decoder.push(msg, received_s):

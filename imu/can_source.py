@@ -6,7 +6,9 @@ as the log of that stream; ``tests/test_imu_align.py`` and ``tests/test_imu_live
 A sample is yielded as soon as it is complete (its clock frame and one frame of every other IMU
 source have arrived), so the latency from the last frame's arrival is only the decode time.
 A sample that stays incomplete is yielded when a later frame shows that nothing can join it any
-more, or, on a quiet bus, ``align_window_s`` plus a margin after its clock frame arrived.
+more, or, on a quiet bus, ``align_window_s`` plus a margin after its clock frame arrived. With
+``[can] reorder_tolerance_s`` every accepted frame is first held for that much bus time (frames
+of other IDs stamped before it may still come) and aligned in time order: that much latency.
 
 :class:`LiveSource` wraps a bus::
 
@@ -141,6 +143,7 @@ class StreamDecoder:
         self._reorder_s = float(self.mapping.reorder_tolerance_s)
         self._held: list[tuple] = []       # frames held for the reorder tolerance (a heap by time)
         self._held_n = 0
+        self._released_t = -math.inf       # the newest frame released from it
         self._backwards_in_row = 0
         #: Times the bus clock was taken to have restarted (:data:`CLOCK_RESET_AFTER`).
         self.clock_resets = 0
@@ -214,12 +217,12 @@ class StreamDecoder:
             counts["excess_length"] = counts.get("excess_length", 0) + 1
         tol = self._reorder_s
         out: list[ImuSample] = []
-        if t < self._last_t - tol or t < self._id_last_t.get(aid, -math.inf):
+        if t < self._last_t - tol or t < self._id_last_t.get(aid, -math.inf) or t < self._released_t:
             self._backwards_in_row += 1
             if self._backwards_in_row < CLOCK_RESET_AFTER:
                 counts["backwards"] = counts.get("backwards", 0) + 1
                 return []
-            out = self._release(math.inf)     # the old clock's held frames first
+            out = self._release(math.inf, received_s)     # the old clock's held frames first
             self._reset_clock()
         self._backwards_in_row = 0
         self._last_t = max(self._last_t, t)
@@ -230,14 +233,18 @@ class StreamDecoder:
         # held until no frame of another ID stamped before it can still be taken
         heapq.heappush(self._held, (t, self._held_n, idx, payload, received_s))
         self._held_n += 1
-        return out + self._release(self._last_t - tol)
+        return out + self._release(self._last_t - tol, received_s)
 
-    def _release(self, t_limit: float) -> list[ImuSample]:
-        """Decode the held frames (reorder tolerance) stamped at or before ``t_limit``, in time order."""
+    def _release(self, t_limit: float, released_s: float) -> list[ImuSample]:
+        """Decode the held frames (reorder tolerance) stamped at or before ``t_limit``, in time
+        order, as if they arrived at ``released_s`` (the quiet-bus expiry of the samples they
+        open counts from then, not from their arrival a tolerance earlier). A frame stamped
+        before the last one released is too late from then on (``backwards``)."""
         out: list[ImuSample] = []
         while self._held and self._held[0][0] <= t_limit:
-            t, _, idx, payload, received_s = heapq.heappop(self._held)
-            out += self._decode(idx, t, payload, received_s)
+            t, _, idx, payload, _ = heapq.heappop(self._held)
+            self._released_t = t
+            out += self._decode(idx, t, payload, released_s)
         return out
 
     def _decode(self, idx: list[int], t: float, payload: bytes, received_s: float) -> list[ImuSample]:
@@ -284,6 +291,7 @@ class StreamDecoder:
         self._samples.new_clock()
         self._last_t = -math.inf
         self._id_last_t.clear()
+        self._released_t = -math.inf
 
     # --- alignment (same rule as imu.samples.align) ------------------------------------------
     def _event(self, si: int, t: float, si_row: list, valid_row: list,
@@ -377,7 +385,7 @@ class StreamDecoder:
         margin_s = QUIET_BUS_MARGIN_S if margin_s is None else margin_s
         out = []
         while self._held and now_s - self._held[0][4] > self._reorder_s + margin_s:   # held too long
-            out += self._release(self._held[0][0])
+            out += self._release(self._held[0][0], now_s)
         while self._open and now_s - self._open[0].received_s > self.window_s + margin_s:
             out.append(self._emit(self._open.popleft(), now_s))
         return out
@@ -385,7 +393,7 @@ class StreamDecoder:
     def flush(self) -> list[ImuSample]:
         """End of stream: emit every open sample; pending frames are unaligned."""
         now_s = time.perf_counter()
-        out = self._release(math.inf)
+        out = self._release(math.inf, now_s)
         out += [self._emit(g, now_s) for g in self._open]
         self._open.clear()
         for _, sp, _ in self._pending:

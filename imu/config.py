@@ -122,7 +122,8 @@ class CanMapping:
             raise ImuConfigError(
                 f"[can] align_window_s must be > 0 and < gap_limit_s = {self.gap_limit_s}, got {self.align_window_s}"
             )
-        if not 0 <= self.reorder_tolerance_s <= 1.0:
+        if isinstance(self.reorder_tolerance_s, bool) or not isinstance(self.reorder_tolerance_s, numbers.Real) \
+                or not 0 <= self.reorder_tolerance_s <= 1.0:
             raise ImuConfigError(f"[can] reorder_tolerance_s must be in 0 .. 1 s, got {self.reorder_tolerance_s}")
         if not any(ch in self.signals for ch in GYRO + ACCEL):
             raise ImuConfigError(

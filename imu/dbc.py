@@ -245,15 +245,20 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
 
 
 #: Value-table names that mark a raw value as no measurement (signal not available, error, not
-#: yet initialised), as real DBCs write them ...
-INVALID_CHOICE = re.compile(r"\bsna\b|invalid|error|fault|(un|not[ _]?)avail|\bn/?a\b|\binit", re.IGNORECASE)
-#: ... unless the name says the opposite: 'No error', 'No fault', 'Initialized', 'OK'.
-VALID_CHOICE = re.compile(r"\bno[ _-]?(error|fault|failure)s?\b|\binitiali[sz]ed\b|\bok(ay)?\b", re.IGNORECASE)
+#: yet initialised), as real DBCs write them (matched with '_' and '-' read as spaces) ...
+INVALID_CHOICE = re.compile(r"\bsna\b|invalid|error|fault|unavail|\bnot avail|\bn/?a\b|\binit", re.IGNORECASE)
+#: ... unless the name says the opposite ('No error', 'NO_FAULT', 'Initialized', 'OK') ...
+VALID_CHOICE = re.compile(r"\bno (error|fault|failure)s?\b|\binitiali[sz]ed\b|\bok(ay)?\b", re.IGNORECASE)
+#: ... which a negation undoes ('Not initialized', 'not OK').
+NEGATED_VALID = re.compile(r"\bnot (initiali[sz]ed|ok(ay)?|valid|ready)\b", re.IGNORECASE)
 
 
 def invalid_choice(name: str) -> bool:
     """Whether a value-table name marks its raw value as no measurement."""
-    return bool(INVALID_CHOICE.search(name)) and not VALID_CHOICE.search(name)
+    text = re.sub(r"[_\-]+", " ", name)
+    if NEGATED_VALID.search(text):
+        return True
+    return bool(INVALID_CHOICE.search(text)) and not VALID_CHOICE.search(text)
 
 
 def _invalid_raw(sig: Any) -> frozenset:

@@ -566,8 +566,10 @@ def _finish(path: Path, plan: DecodePlan, mount: ImuMount, packed: _Packed, chan
         keep &= ~short
     count(keep & (length > msg_len), "excess_length")
     # A stamp far ahead of both neighbours of its message ID (a clock glitch) is a bad timestamp;
-    # backwards: earlier than an already accepted mapped frame (dropped frames never raise the
-    # max; the streaming twin, imu.can_source.StreamDecoder, sees frames in this order too).
+    # backwards: earlier than an already accepted mapped frame by more than [can]
+    # reorder_tolerance_s (0: at all), or earlier than the last accepted frame of its own ID
+    # (dropped frames never raise the max; the streaming twin, imu.can_source.StreamDecoder,
+    # sees frames in this order too and holds them for the tolerance).
     idx = np.flatnonzero(keep)
     for fid in np.unique(aid[idx]):
         rows = idx[aid[idx] == fid]
@@ -588,9 +590,10 @@ def _finish(path: Path, plan: DecodePlan, mount: ImuMount, packed: _Packed, chan
         prev_max = np.maximum.accumulate(np.concatenate(([-np.inf], tk[:-1])))
         behind = tk < prev_max - mapping.reorder_tolerance_s
         if mapping.reorder_tolerance_s > 0:
-            ok_idx = idx[~behind]
-            for fid in np.unique(aid[ok_idx]):
-                pos = np.flatnonzero(~behind)[aid[ok_idx] == fid]
+            ok_pos = np.flatnonzero(~behind)
+            ok_aid = aid[idx[ok_pos]]
+            for fid in np.unique(ok_aid):
+                pos = ok_pos[ok_aid == fid]
                 tf = tk[pos]
                 prev_id = np.maximum.accumulate(np.concatenate(([-np.inf], tf[:-1])))
                 behind[pos[tf < prev_id]] = True

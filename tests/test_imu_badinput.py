@@ -200,7 +200,10 @@ def test_OUT_OF_RANGE_and_SNA_values_are_invalid(tmp_path, clean):
     ("Init", True), ("invalid", True), ("N/A", True), ("Error", True),
     # names that say the opposite (comma2k19's Toyota DBC has "NO_FAULT"; it matched 'fault')
     ("NO_FAULT", False), ("No error", False), ("Initialized", False), ("ok", False),
-    ("valid", False), ("Snap", False), ("Nasa", False),
+    ("valid", False), ("Snap", False), ("Nasa", False), ("NO_ERROR_DETECTED", False), ("NO_FAULT_PRESENT", False),
+    # negations of those (a review found 'Not initialized' called valid)
+    ("Not initialized", True), ("NOT_INITIALIZED", True), ("Sensor not initialised", True),
+    ("Error - not OK", True), ("Signal not OK / error", True), ("not valid", True),
 ])
 def test_VALUE_TABLE_NAMES_invalid_or_not(name, invalid):
     from imu.dbc import invalid_choice
