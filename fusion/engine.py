@@ -149,7 +149,8 @@ class FusionStream:
         self._pending: list[VisionMeasurement | RollAhead] = []   # waiting for the IMU to pass their time
         self._n = 0
         #: the first IMU intervals (s): their median is the sample period that scales the
-        #: accelerometer noise to the IMU's rate (fixed once known, so that replays agree)
+        #: accelerometer noise to the IMU's rate (fixed once known, so that replays agree; the
+        #: very first sample, before any interval, takes the reference rate)
         self._intervals: list[float] = []
         self._r_scale = accel_r_scale(options.noise, 1.0 / options.noise.accel_meas_rate_hz * options.gravity_every)
         self._initialized = False
