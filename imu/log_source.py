@@ -274,7 +274,9 @@ def _whole(msg: can.Message, feed: _Lines) -> bool:
     holds fewer data bytes than its DLC field announces (ASC, TRC, CSV state the DLC), or it ends
     in half a byte (the readers take a lone last hex digit, or a candump line's odd last digit,
     for a whole byte). A candump line cut between two bytes looks like a shorter frame: the
-    decoder counts it as a wrong length when the DBC says otherwise."""
+    decoder counts it as a wrong length when the DBC says otherwise. A whole line whose last
+    token happens to be a lone hex digit that is not data (a CAN FD ASC line's last field) is
+    taken for cut too: such a log without its End TriggerBlock is incomplete either way."""
     if not feed.unterminated or msg.is_remote_frame:
         return True
     tokens = feed.last.split()
