@@ -11,7 +11,7 @@ import itertools
 import math
 import os
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import cv2
 import numba as nb
@@ -141,7 +141,7 @@ def default_workers() -> int:
 def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Mount, road: RoadMarkings,
                    options: EstimatorOptions = EstimatorOptions(), *, progress: bool = True,
                    debug_video: str | os.PathLike | None = None, debug_fps: float | None = None,
-                   workers: int = 1):
+                   workers: int = 1, while_waiting: Callable[[], object] | None = None):
     """Run the estimator over a video.
 
     Parameters
@@ -166,6 +166,10 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         process, each decoded from its own seek point and started :data:`WARM_UP_S` early
         (the estimator needs no seed for correctness, but it carries the vertical curvature's
         prior from frame to frame). 1 runs in this process.
+    while_waiting : callable, optional
+        Work of the caller's that does not need the vision (``vifusion run``: the IMU-only
+        filter), called once in this process while the workers estimate (before the frames
+        when there is one worker).
 
     Returns
     -------
@@ -191,11 +195,13 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
     bar = tqdm(total=len(wanted), desc="vision", unit="frame", disable=not progress)
     try:
         if workers == 1:
+            if while_waiting is not None:
+                while_waiting()
             rows, n_read = _estimate_piece(src, wanted, want, (camera, mount, road, options), debug_video,
                                            debug_fps or _fps_of(frames), bar.update, speeds)
         else:
             rows, n_read = _estimate_parallel(src, wanted, want, (camera, mount, road, options), workers, bar.update,
-                                              speeds, warm_up)
+                                              speeds, warm_up, while_waiting)
     finally:
         bar.close()
     table = pd.DataFrame(rows, columns=list(VISION_COLUMNS))
@@ -451,7 +457,7 @@ def warm_up_frames(fps: float) -> int:
 
 
 def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, workers: int, tick,
-                       speeds: dict | None = None, warm_up: int = 90):
+                       speeds: dict | None = None, warm_up: int = 90, while_waiting=None):
     """:func:`_estimate_piece` over one contiguous piece per worker in a process pool. Each
     piece but the first starts ``warm_up`` frames early (:data:`WARM_UP_S`) and drops those
     rows: the estimator carries state from frame to frame (the vertical curvature's prior, the
@@ -477,6 +483,8 @@ def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, 
     with ProcessPoolExecutor(max_workers=len(jobs), mp_context=ctx, initializer=_init_worker,
                              initargs=(counter,)) as pool:
         futures = [pool.submit(_piece_job, j) for j in jobs]
+        if while_waiting is not None:   # the workers are forked by now: this process is free
+            while_waiting()
         pending = set(futures)
         while pending:
             _, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)

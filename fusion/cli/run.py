@@ -173,10 +173,16 @@ def _run(args: argparse.Namespace) -> int:
     # the wheel speed at each frame: the estimator carries the road's twist by the distance travelled
     frames = frames.assign(speed_m_s=frame_speeds(imu, frames["t_s"].to_numpy() + offset_s))
 
+    imu_only_box: dict = {}
+
+    def imu_only_run() -> None:   # needs no vision: done while the vision workers estimate
+        imu_only_box["run"] = fuse(imu, None, lever_arm_m=cfg.imu.position_m, has_pitch_rate=has_pitch_rate,
+                                   options=fusion_opts)
+
     t0 = time.perf_counter()
     vision, vstats = estimate_video(files.video, frames, cfg.camera, cfg.mount, cfg.road, vision_opts,
                                     progress=progress, debug_video=args.debug_video,
-                                    workers=args.workers or default_workers())
+                                    workers=args.workers or default_workers(), while_waiting=imu_only_run)
     timings["vision"] = time.perf_counter() - t0
     if vstats.get("frames_missing"):
         warnings.append(f"{files.video}: {vstats['frames_read']} frames could be read; {vstats['frames_missing']} of "
@@ -208,7 +214,7 @@ def _run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     fused = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, has_pitch_rate=has_pitch_rate, options=fusion_opts,
                  smooth=smooth, camera_time_offset_s=offset_s, progress=progress)
-    imu_only = fuse(imu, None, lever_arm_m=cfg.imu.position_m, has_pitch_rate=has_pitch_rate, options=fusion_opts)
+    imu_only = imu_only_box["run"]
     pb = plain_bank(imu_only.fused, vision, offset_s)
     table = fused.fused.copy()
     table["roll_world_imu_only_deg"] = imu_only.fused["roll_world_deg"].to_numpy()
