@@ -92,6 +92,13 @@ class _SourceCount:
         self.clock_frames = 0
         self.last_t = -math.inf
 
+    def stamp(self, t: float) -> None:
+        """One more frame (or sample) at ``t`` on the current clock."""
+        if not self.clock_frames:
+            self.first_t = t
+        self.clock_frames += 1
+        self.last_t = t
+
     def span_s(self) -> float:
         """Time covered on all clocks so far, s."""
         return self.span_before_s + (self.last_t - self.first_t if self.clock_frames else 0.0)
@@ -261,11 +268,8 @@ class StreamDecoder:
                 continue
             if sc.frames and math.isfinite(sc.last_t) and t - sc.last_t > self.gap_limit_s and len(sc.gaps) < _MAX_GAPS:
                 sc.gaps.append(Gap(src.name, sc.last_t, t - sc.last_t))
-            if not sc.clock_frames:
-                sc.first_t = t
             sc.frames += 1
-            sc.clock_frames += 1
-            sc.last_t = t
+            sc.stamp(t)
             for j, p in enumerate(src.signals):
                 key = "valid" if valid_row[j] else "invalid"
                 getattr(sc, key)[p.channel] = getattr(sc, key).get(p.channel, 0) + 1
@@ -370,10 +374,7 @@ class StreamDecoder:
         vals["speed_m_s"] = speed
         vals["fresh_speed"] = bool(fresh_speed)
         self.samples += 1
-        if not self._samples.clock_frames:
-            self._samples.first_t = T
-        self._samples.clock_frames += 1
-        self._samples.last_t = T
+        self._samples.stamp(T)
         return ImuSample(received_s=released_s, **vals)
 
     def expire(self, now_s: float | None = None, margin_s: float | None = None) -> list[ImuSample]:

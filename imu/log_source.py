@@ -84,14 +84,19 @@ class ReadState:
 
     def problem(self, text: str) -> None:
         if len(self.problems) < 20:
-            self.problems.append(" ".join(text.split())[:300])
+            self.problems.append(_one_line(text))
 
     def stopped(self, text: str) -> None:
         """The read stopped before the file's end (or the file broke off), for this reason."""
         self.complete = False
         self.problem(text)
         if not self.stop_reason:
-            self.stop_reason = " ".join(text.split())[:300]
+            self.stop_reason = _one_line(text)
+
+
+def _one_line(text: str) -> str:
+    """A problem's text as the summary keeps it: one line, at most 300 characters."""
+    return " ".join(text.split())[:300]
 
 
 class _Lines:
