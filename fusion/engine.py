@@ -47,6 +47,12 @@ _PERIOD_SAMPLES = 20
 _MAX_VISION_LEAD_S = 1.0
 
 
+def _all_finite(a: np.ndarray) -> bool:
+    """Whether every value of a small array is finite (per sample: a quarter of the time of
+    ``np.all(np.isfinite(a))``, whose reduction machinery costs 2 us a call)."""
+    return all(map(math.isfinite, a.ravel().tolist()))
+
+
 @dataclass(frozen=True)
 class FusionOptions:
     noise: NoiseModel = field(default_factory=NoiseModel)
@@ -182,7 +188,7 @@ class FusionStream:
         than ``max_imu_gap_s`` after it restarts the filter (``counts["imu_gaps"]``)."""
         t = float(t_s)
         gyro, accel = np.asarray(gyro_rad_s, dtype=float), np.asarray(accel_m_s2, dtype=float)
-        if not (math.isfinite(t) and np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
+        if not (math.isfinite(t) and _all_finite(gyro) and _all_finite(accel)):
             self.counts["imu_invalid"] += 1
             return False
         if self._hist and not t > self._hist[-1].t:
@@ -228,7 +234,7 @@ class FusionStream:
             return
         angles = np.asarray(angles_rad, dtype=float)
         sig = np.asarray(sigmas_rad, dtype=float)
-        if not valid or not (np.all(np.isfinite(angles)) and np.all(np.isfinite(sig))):
+        if not valid or not (_all_finite(angles) and _all_finite(sig)):
             self.counts["vision_invalid"] += 1
             return
         tw = tuple(float(g) if math.isfinite(g) else 0.0 for g in twist_m)

@@ -31,10 +31,10 @@ def warm_up() -> float:
     """Run the sample drive once (vision in this process, no report); returns the seconds taken."""
     from .cli import main as cli_main
 
-    from vision.video import _numba_started
+    from vision.video import start_numba
 
     t0 = time.perf_counter()
-    _numba_started()        # called before the vision workers fork; the sample runs one worker
+    start_numba()        # called before the vision workers fork; the sample runs one worker
     with tempfile.TemporaryDirectory(prefix="vifusion-warmup-") as tmp:
         status = cli_main(["run", "--out", str(Path(tmp) / "run"), "--no-report", "--workers", "1", "--quiet"])
     if status != 0:

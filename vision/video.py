@@ -23,7 +23,8 @@ from .estimator import Estimator, VisionEstimate
 from .options import EstimatorOptions
 from .twistmap import travel_between
 
-__all__ = ["FrameSource", "count_frames", "default_workers", "estimate_video", "vision_row", "VISION_COLUMNS"]
+__all__ = ["FrameSource", "count_frames", "default_workers", "estimate_video", "start_numba", "vision_row",
+           "VISION_COLUMNS"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -447,7 +448,9 @@ def _piece_starts(n_frames: int, workers: int, warm: int) -> list[int]:
 
 
 @nb.njit(cache=True)
-def _numba_started() -> int:  # pragma: no cover (numba)
+def start_numba() -> int:  # pragma: no cover (numba)
+    """Start numba's compiler target in this process (0.1-0.3 s at the first compiled call of a
+    process, whichever kernel it is): done before forking, the workers inherit it."""
     return 1
 
 
@@ -477,7 +480,7 @@ def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, 
         # numba's first call in a process sets up its compiler target (0.3-0.4 s here, importing
         # its implementations): done once here, the forked workers inherit it instead of each
         # paying it, and so does this process's fusion after the vision.
-        _numba_started()
+        start_numba()
     counter = ctx.Value("q", 0)
     shown = 0
     with ProcessPoolExecutor(max_workers=len(jobs), mp_context=ctx, initializer=_init_worker,

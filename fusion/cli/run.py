@@ -89,7 +89,7 @@ def _run(args: argparse.Namespace) -> int:
     from imu import CHANNELS, VALUE_COLUMNS, read_log
     from imu.samples import never_seen
     from vision.options import options_from_table
-    from vision.video import default_workers, estimate_video
+    from vision.video import start_numba, default_workers, estimate_video
 
     from ..calibration import calibration_table, pitch_gyro_prior_deg_s, read_calibration, write_calibration
     from ..config import load_config
@@ -135,6 +135,9 @@ def _run(args: argparse.Namespace) -> int:
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
     args.partial_dir = tmp
+    # numba's compiler target, which every compiled kernel needs (0.1-0.3 s once a process, as
+    # imports are): started here, before the vision workers fork from this process
+    start_numba()
     timings["start-up"] = time.perf_counter() - t_start
 
     # CAN first: it is cheap and fails fast on a bad log or mapping.
