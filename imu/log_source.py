@@ -235,10 +235,10 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                     feed.recording = False
                     header = feed.recorded[:-1]
                     first = False
-                    if _whole(msg, feed):
+                    if _whole(msg, feed, state.fmt):
                         yield msg
                 for msg in it:
-                    if _whole(msg, feed):
+                    if _whole(msg, feed, state.fmt):
                         yield msg
                 _check_end(feed, header, state)
                 return
@@ -274,19 +274,21 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                 feed.replay = deque(header)
 
 
-def _whole(msg: can.Message, feed: _Lines) -> bool:
+def _whole(msg: can.Message, feed: _Lines, fmt: str = "") -> bool:
     """False for the frame of a last line without line end that a writer cut off mid-line: it
-    holds fewer data bytes than its DLC field announces (ASC, TRC, CSV state the DLC), or it ends
-    in half a byte (the readers take a lone last hex digit, or a candump line's odd last digit,
-    for a whole byte). A candump line cut between two bytes looks like a shorter frame: the
-    decoder counts it as a wrong length when the DBC says otherwise. A whole line whose last
-    token happens to be a lone hex digit that is not data (a CAN FD ASC line's last field) is
-    taken for cut too: such a log without its End TriggerBlock is incomplete either way."""
+    holds fewer data bytes than its DLC field announces (ASC, TRC, CSV state the DLC), or its
+    data end in half a byte (the readers take a lone last hex digit, or a candump line's odd last
+    digit, for a whole byte). A candump line cut between two bytes looks like a shorter frame: the
+    decoder counts it as a wrong length when the DBC says otherwise. An ASC line may go on after
+    its data (a CAN FD line's duration, flags, CRC and bit timings; CANoe's ``Length = ...
+    ID = ...``): a lone digit there is a whole field, not a cut data byte (``fmt``: the log's
+    suffix)."""
     if not feed.unterminated or msg.is_remote_frame:
         return True
     tokens = feed.last.split()
     last = tokens[-1] if tokens else ""
-    cut = len(msg.data) < msg.dlc or (msg.dlc > 0 and len(last) == 1 and last in string.hexdigits)
+    data_ends_line = fmt != ".asc" or _asc_data_end(tokens) >= len(tokens)
+    cut = len(msg.data) < msg.dlc or (msg.dlc > 0 and data_ends_line and len(last) == 1 and last in string.hexdigits)
     if "#" in last:  # candump: ID#DATA or ID##<flags>DATA (CAN FD)
         hexdata = last.split("#", 1)[1]
         hexdata = hexdata[2:] if hexdata.startswith("#") else hexdata
@@ -294,6 +296,19 @@ def _whole(msg: can.Message, feed: _Lines) -> bool:
     if cut:
         feed.cut = True
     return not cut
+
+
+def _asc_data_end(tokens: list[str]) -> int:
+    """Index of the first token after the data bytes of an ASC frame line, as python-can's reader
+    takes them (classic: ``time channel id dir d dlc data...``; CAN FD: ``time CANFD channel dir
+    id [name] brs esi dlc length data...``); the line's length when it cannot tell."""
+    try:
+        if len(tokens) > 1 and tokens[1].upper() == "CANFD":
+            brs = 5 if tokens[5].isdigit() else 6        # after the ID: brs, or a symbolic name
+            return brs + 4 + int(tokens[brs + 3])        # brs esi dlc length, then the data
+        return 6 + min(8, dlc2len(int(tokens[5], 16)))
+    except (IndexError, ValueError):
+        return len(tokens)
 
 
 def _check_end(feed: _Lines, header: list[str], state: ReadState) -> None:

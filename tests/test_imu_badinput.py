@@ -403,6 +403,36 @@ def test_LAST_LINE_WITHOUT_LINE_END_whole_is_read_cut_is_marked(tmp_path, clean,
     assert len(ref) - 1 <= len(table) <= len(ref)
 
 
+@pytest.mark.parametrize("last_data", [bytes(range(1, 13)), bytes([1, 2, 3, 0x88])], ids=["fd", "classic"])
+def test_ASC_LAST_LINE_a_lone_digit_after_the_data_is_a_field_not_a_cut(tmp_path, last_data):
+    """An ASC log without trigger block (CANoe exports) whose last frame line has no line end: a
+    CAN FD line goes on after its data (duration, flags, CRC, bit timings: python-can writes '0'
+    last), and CANoe's classic lines with 'ID = 5'. That lone digit is a whole field: the log is
+    complete and every frame read (it was called cut off). Cut inside the data, it still is."""
+    from imu.log_source import ReadState, iter_messages
+
+    path = tmp_path / "x.asc"
+    with can.ASCWriter(str(path)) as w:
+        for k in range(3):
+            w.on_message_received(can.Message(timestamp=1.0 + k, arbitration_id=0x5, data=last_data,
+                                              is_fd=len(last_data) > 8, is_extended_id=False))
+    lines = [ln for ln in path.read_text().splitlines() if "triggerblock" not in ln.lower()]
+    if len(last_data) <= 8:   # CANoe's classic line: fields after the data, the last a lone digit
+        lines[-1] += "  Length = 0 BitCount = 0 ID = 5"
+    assert lines[-1].split()[-1] in ("0", "5")
+    path.write_text("\n".join(lines))
+    state = ReadState(path, ".asc")
+    msgs = list(iter_messages(path, state))
+    assert state.complete, state.problems
+    assert [bytes(m.data) for m in msgs] == [last_data] * 3
+    cut = lines[-1][:lines[-1].index(last_data[-1:].hex().upper()) + 1]   # half of the last data byte
+    path.write_text("\n".join(lines[:-1] + [cut]))
+    state = ReadState(path, ".asc")
+    msgs = list(iter_messages(path, state))
+    assert not state.complete and "no line end" in state.stop_reason
+    assert [bytes(m.data) for m in msgs] == [last_data] * 2
+
+
 def test_STOP_REASON_is_the_cause_not_the_first_problem(tmp_path, clean):
     """Unreadable lines early in a log and a cut at its end: the summary's stop reason (what
     `vifusion can` and the run report name) is the cut, not the first problem listed (it named
