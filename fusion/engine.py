@@ -152,6 +152,9 @@ class FusionStream:
         self.steps: list[StepRecord] = []
         self.start: tuple[np.ndarray, np.ndarray] | None = None   # posterior at the first sample
         self._hist: deque[_ImuSample] = deque()
+        #: The roll-deferral decisions of the vision results applied in ``_hist``, by ``id``
+        #: (ahead_s, resumed, defer, twist_now): what a replay applies them with.
+        self._decisions: dict[int, tuple[float, bool, bool, bool]] = {}
         self._pending: list[VisionMeasurement | RollAhead] = []   # waiting for the IMU to pass their time
         self._n = 0
         #: the first IMU intervals (s): their median is the sample period that scales the
@@ -218,7 +221,8 @@ class FusionStream:
         self._process_sample(sample, visions=ready)
         self._hist.append(sample)
         while self._hist and sample.t - self._hist[0].t > self.options.history_s:
-            self._hist.popleft()
+            for v in self._hist.popleft().applied:    # out of reach of a replay
+                self._decisions.pop(id(v), None)
         return True
 
     def add_vision(self, t_s: float, angles_rad, sigmas_rad, valid: bool = True,
@@ -275,6 +279,7 @@ class FusionStream:
         self.ekf.P[np.ix_(keep, keep)] = old.P[np.ix_(keep, keep)]
         newest = self._hist[-1].t if self._hist and not clock_reset else math.inf
         self._hist.clear()
+        self._decisions.clear()
         # results from before the gap (after a clock that went back: all) do not carry across
         self._drop_pending(lambda p: p.t_s <= newest or isinstance(p, RollAhead))
         if clock_reset:
@@ -433,14 +438,22 @@ class FusionStream:
         # is, its roll at capture as the bank ahead, after its twist as the bank rate; until the
         # first deferred roll is due the frames' twists are applied at capture (the rate ahead
         # for the rate here), not again with their rolls.
-        # (A gap longer than L / v: every roll from before it has been applied. From the times
-        # alone, so that a replay of late results (_apply_late) decides as the first pass did.)
-        ahead_s = m.roll_lookahead_m / v if v > 1.0 and m.roll_lookahead_m > 0.0 else 0.0
-        resumed = t - self._last_vision_t > max(_VISION_GAP_S, ahead_s)
-        defer = (self.options.defer_roll and m.roll_lookahead_m > 0.0 and v > 1.0 and self._vision_initialized
-                 and not resumed)
-        twist_now = (self.options.defer_roll and self._vision_initialized and math.isfinite(m.road_twist_rad_m)
-                     and (resumed or (defer and t < self._roll_hole_until)))
+        # (A gap longer than L / v: every roll from before it has been applied.) A replay of
+        # late results (_apply_late) takes the first pass's decisions: a late result from before
+        # this one can end a gap that the first pass saw, and deciding again to defer the roll
+        # would lose it (its RollAhead is queued only once, by the first pass), or apply the
+        # twist a second time.
+        decided = None if first else self._decisions.get(id(m))
+        if decided is None:
+            ahead_s = m.roll_lookahead_m / v if v > 1.0 and m.roll_lookahead_m > 0.0 else 0.0
+            resumed = t - self._last_vision_t > max(_VISION_GAP_S, ahead_s)
+            defer = (self.options.defer_roll and m.roll_lookahead_m > 0.0 and v > 1.0 and self._vision_initialized
+                     and not resumed)
+            twist_now = (self.options.defer_roll and self._vision_initialized and math.isfinite(m.road_twist_rad_m)
+                         and (resumed or (defer and t < self._roll_hole_until)))
+            self._decisions[id(m)] = (ahead_s, resumed, defer, twist_now)
+        else:
+            ahead_s, resumed, defer, twist_now = decided
         if resumed:
             self._roll_hole_until = t + ahead_s
         if twist_now:
