@@ -9,6 +9,9 @@ A sample that stays incomplete is yielded when a later frame shows that nothing 
 more, or, on a quiet bus, ``align_window_s`` plus a margin after its clock frame arrived. With
 ``[can] reorder_tolerance_s`` every accepted frame is first held for that much bus time (frames
 of other IDs stamped before it may still come) and aligned in time order: that much latency.
+A frame stamped more than ``gap_limit_s`` after the previous one of its ID (a clock glitch, or
+the ID back after a gap) holds the frames after it until that ID's next frame says which: the
+log path's rule, at the latency of one frame of that ID, only then.
 
 :class:`LiveSource` wraps a bus::
 
@@ -45,10 +48,20 @@ __all__ = ["StreamDecoder", "LiveSource"]
 #: not delay complete samples, which are yielded as soon as their last frame arrives.
 QUIET_BUS_MARGIN_S = 0.02
 #: Mapped frames in a row older than the newest accepted one after which the bus clock is
-#: taken to have restarted (a logger or interface restart, a stepped clock, or a single frame
-#: with a far-future stamp before it): about 70 ms of an IMU bus. Fewer are counted as
-#: ``backwards`` and dropped; without this one bad stamp silenced the stream for good.
+#: taken to have restarted (a logger or interface restart, a stepped clock): about 70 ms of an
+#: IMU bus. Fewer are counted as ``backwards`` and dropped; without this one bad stamp silenced
+#: the stream for good. (A single frame stamped far ahead of its neighbours is a glitch, which
+#: the glitch gate drops before it gets here: :data:`SUSPECT_WAIT_S`.)
 CLOCK_RESET_AFTER = 20
+
+#: How long frames wait behind a frame stamped more than ``gap_limit_s`` after the previous one
+#: of its ID, for that ID's next frame to say whether the stamp was a glitch (the next is more
+#: than ``gap_limit_s`` behind it: dropped as a bad timestamp, as the log path does) or the
+#: resumption after a gap (taken): s of arrival time, and at most this many mapped frames (a
+#: stream fed faster than real time). Beyond either the frame is taken, as the log path takes
+#: the last frame of an ID. (Not the waiting frames' stamps: a glitch among them would end it.)
+SUSPECT_WAIT_S = 0.5
+SUSPECT_WAIT_FRAMES = 1000
 
 _IMU = set(GYRO + ACCEL)
 #: Gaps kept per source for the summary of a long-running stream.
@@ -152,6 +165,9 @@ class StreamDecoder:
         self._held_n = 0
         self._released_t = -math.inf       # the newest frame released from it
         self._backwards_in_row = 0
+        self._id_seen_t: dict[int, float] = {}   # the newest stamp of each ID through the filters
+        self._suspect: tuple | None = None        # a frame far ahead of its ID's previous one
+        self._gate: deque[tuple] = deque()        # frames that came after it, in arrival order
         #: Times the bus clock was taken to have restarted (:data:`CLOCK_RESET_AFTER`).
         self.clock_resets = 0
         self._src = [_SourceCount() for _ in self.plan.sources]
@@ -222,11 +238,54 @@ class StreamDecoder:
                 return []
         elif len(data) > length:
             counts["excess_length"] = counts.get("excess_length", 0) + 1
+        payload = data[:length].ljust(length, b"\0")
+        prev = self._id_seen_t.get(aid)
+        self._id_seen_t[aid] = t
+        if self._suspect is None and not (prev is not None and t - prev > self.gap_limit_s):
+            return self._accept(aid, idx, t, payload, received_s)      # the usual case
+        self._gate.append((aid, idx, t, payload, received_s, prev))
+        return self._pump()
+
+    def _pump(self, force: bool = False) -> list[ImuSample]:
+        """Frames through the glitch gate, in arrival order. A frame stamped more than
+        ``gap_limit_s`` after the previous frame of its ID waits, and the frames after it with
+        it, for that ID's next frame: more than ``gap_limit_s`` behind it, the stamp was a glitch
+        (counted as a bad timestamp, dropped); otherwise the ID resumed after a gap, and the
+        frame is taken, then those that waited. The log path's rule, frame by frame: without it
+        one far-future stamp made the next 20 frames 'backwards' and restarted the bus clock.
+        ``force`` (end of stream, quiet bus): a frame still waiting is taken."""
+        out: list[ImuSample] = []
+        gate, limit = self._gate, self.gap_limit_s
+        while gate or (force and self._suspect is not None):
+            sus = self._suspect
+            if sus is None:
+                aid, idx, t, payload, received_s, prev = gate.popleft()
+                if prev is not None and t - prev > limit:
+                    self._suspect = (aid, idx, t, payload, received_s, prev)
+                else:
+                    out += self._accept(aid, idx, t, payload, received_s)
+                continue
+            nxt = next((g for g in gate if g[0] == sus[0]), None)
+            if nxt is None and not force and len(gate) < SUSPECT_WAIT_FRAMES \
+                    and not (gate and gate[-1][4] - sus[4] > SUSPECT_WAIT_S):
+                break                                    # its ID's next frame is yet to come
+            self._suspect = None
+            if nxt is not None and sus[2] - nxt[2] > limit:
+                counts = self._msg_counts[sus[0]]
+                counts["bad_timestamp"] = counts.get("bad_timestamp", 0) + 1
+            else:
+                out += self._accept(*sus[:5])
+        return out
+
+    def _accept(self, aid: int, idx: list[int], t: float, payload: bytes, received_s: float) -> list[ImuSample]:
+        """A frame through the filters and the glitch gate: the order rules (backwards, the
+        reorder tolerance, a restarted clock), then decoded, or held for the tolerance."""
         tol = self._reorder_s
         out: list[ImuSample] = []
         if t < self._last_t - tol or t < self._id_last_t.get(aid, -math.inf) or t < self._released_t:
             self._backwards_in_row += 1
             if self._backwards_in_row < CLOCK_RESET_AFTER:
+                counts = self._msg_counts[aid]
                 counts["backwards"] = counts.get("backwards", 0) + 1
                 return []
             out = self._release(math.inf, received_s)     # the old clock's held frames first
@@ -234,7 +293,6 @@ class StreamDecoder:
         self._backwards_in_row = 0
         self._last_t = max(self._last_t, t)
         self._id_last_t[aid] = t
-        payload = data[:length].ljust(length, b"\0")
         if tol <= 0:
             return out + self._decode(idx, t, payload, received_s)
         # held until no frame of another ID stamped before it can still be taken
@@ -385,6 +443,8 @@ class StreamDecoder:
         now_s = time.perf_counter() if now_s is None else now_s
         margin_s = QUIET_BUS_MARGIN_S if margin_s is None else margin_s
         out = []
+        if self._suspect is not None and now_s - self._suspect[4] > SUSPECT_WAIT_S:   # its ID fell silent
+            out += self._pump(force=True)
         while self._held and now_s - self._held[0][4] > self._reorder_s + margin_s:   # held too long
             out += self._release(self._held[0][0], now_s)
         while self._open and now_s - self._open[0].received_s > self.window_s + margin_s:
@@ -394,7 +454,8 @@ class StreamDecoder:
     def flush(self) -> list[ImuSample]:
         """End of stream: emit every open sample; pending frames are unaligned."""
         now_s = time.perf_counter()
-        out = self._release(math.inf, now_s)
+        out = self._pump(force=True)
+        out += self._release(math.inf, now_s)
         out += [self._emit(g, now_s) for g in self._open]
         self._open.clear()
         for _, sp, _ in self._pending:
@@ -497,10 +558,12 @@ class LiveSource:
                 timeout = min(wait_max, max(0.0, dec._open[0].received_s + window + QUIET_BUS_MARGIN_S - clock()))
             if dec._held:
                 timeout = min(timeout, max(0.0, dec._held[0][4] + dec._reorder_s + QUIET_BUS_MARGIN_S - clock()))
+            if dec._suspect is not None:
+                timeout = min(timeout, max(0.0, dec._suspect[4] + SUSPECT_WAIT_S - clock()))
             msg = recv(timeout=timeout)
             if msg is not None:
                 yield from dec.push(msg, clock())
-            if dec._open or dec._held:
+            if dec._open or dec._held or dec._suspect is not None:
                 yield from dec.expire(clock())
         yield from dec.flush()
 

@@ -86,6 +86,13 @@ def messy_streams(draw):
     for _ in range(draw(st.integers(0, 3))):  # a few short frames
         i = int(rng.integers(0, len(frames)))
         frames[i][2] = frames[i][2][:5]
+    if draw(st.booleans()):  # one ID silent for longer than the gap limit (0.1 s), then back
+        aid = int(rng.choice([0x174, 0x178, 0x122]))
+        t0 = frames[0][0] + rng.uniform(0.0, 0.3)
+        frames = [f for f in frames if not (f[1] == aid and t0 <= f[0] < t0 + rng.uniform(0.11, 0.3))]
+    for _ in range(draw(st.integers(0, 2))):  # a clock glitch: one frame stamped far ahead
+        i = int(rng.integers(0, len(frames)))
+        frames[i][0] += float(rng.choice([0.15, 0.3, 5.0, 1e6]))
     return frames
 
 
@@ -93,8 +100,9 @@ def messy_streams(draw):
 @given(frames=messy_streams(), range_check=st.booleans(), reorder=st.sampled_from([0.0, 0.003]))
 def test_twins_on_messy_streams(tmp_path, frames, range_check, reorder):
     """Random streams (drops, duplicates, lags outside the window, frames jumping 1-50 ms back,
-    short frames), with and without a reorder tolerance: the log path and the live decoder give
-    the same samples and counts."""
+    short frames, an ID silent for longer than the gap limit, frames stamped 0.15 s to 1e6 s
+    ahead), with and without a reorder tolerance: the log path and the live decoder give the
+    same samples and counts."""
     path = tmp_path / "messy.csv"  # .csv keeps the float timestamps exactly
     with can.Logger(path) as w:
         for t, aid, data in frames:
@@ -107,8 +115,8 @@ def test_twins_on_messy_streams(tmp_path, frames, range_check, reorder):
     live, live_summary = _stream(path, mapping, MOUNT_FRD, SIM_DB)
     _assert_same(table, live)
     for a, b in zip(summary.sources, live_summary.sources):
-        assert (a.frames, a.duplicates, a.unaligned, a.backwards, a.wrong_length) == \
-               (b.frames, b.duplicates, b.unaligned, b.backwards, b.wrong_length), a.name
+        assert (a.frames, a.duplicates, a.unaligned, a.backwards, a.wrong_length, a.bad_timestamp) == \
+               (b.frames, b.duplicates, b.unaligned, b.backwards, b.wrong_length, b.bad_timestamp), a.name
     for a, b in zip(summary.channels, live_summary.channels):
         assert (a.decoded, a.invalid, a.out_of_range) == (b.decoded, b.invalid, b.out_of_range), a.channel
     # invariants of the table itself

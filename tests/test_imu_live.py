@@ -108,3 +108,61 @@ def test_quiet_bus_still_yields_incomplete_sample(tmp_path):
     assert 0.002 + QUIET_BUS_MARGIN_S <= waited < 0.5
     with pytest.raises(ValueError):
         LiveSource(rx, sim_mapping(), MOUNT_FRD, poll_s=0)
+
+
+def test_clock_glitch_on_a_live_bus_is_dropped_as_the_log_path_drops_it(tmp_path):
+    """A sender keeps the frames' own stamps (python-can's virtual bus with
+    ``preserve_timestamps``): one rate frame (the clock) stamped 1000 s ahead mid-stream, and the
+    last rate frame stamped 0.3 s after the one before it (the ID back after a gap, then silent).
+    The glitch is a bad timestamp, dropped once the next rate frame shows it; the last one has
+    no next frame to tell: on the quiet bus LiveSource takes it after ``SUSPECT_WAIT_S`` (0.5 s),
+    before it is stopped. The samples equal the log path's on the same frames (the glitch made
+    the live decoder drop 20 frames and restart its clock)."""
+    from imu.can_source import SUSPECT_WAIT_S
+
+    imu, speed = sim_imu(duration_s=0.5, seed=3)
+    drive = tmp_path / "drive.csv"
+    write_can_log(drive, imu, speed, extra_traffic=False)
+    msgs = list(can.LogReader(drive))
+    rate = [i for i, m in enumerate(msgs) if m.arbitration_id == 0x174]
+
+    def restamped(m, t):
+        return can.Message(timestamp=t, arbitration_id=m.arbitration_id, is_extended_id=m.is_extended_id,
+                           data=m.data, channel=m.channel)
+
+    msgs[rate[20]] = restamped(msgs[rate[20]], msgs[rate[20]].timestamp + 1000.0)
+    msgs = msgs[:rate[-1] + 1]
+    msgs[-1] = restamped(msgs[-1], msgs[rate[-2]].timestamp + 0.3)
+    path = tmp_path / "glitch.csv"
+    with can.Logger(path) as w:
+        for m in msgs:
+            w.on_message_received(m)
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert next(s for s in summary.sources if s.name == "IMU_RATE").bad_timestamp == 1
+
+    channel = f"vifusion-{uuid.uuid4().hex[:8]}"
+    samples, stopped_at = [], []
+    with can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx, \
+            can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as rx:
+        source = LiveSource(rx, sim_mapping(), MOUNT_FRD, poll_s=0.005)
+
+        def stop_later():
+            for m in msgs:
+                tx.send(m)
+            time.sleep(SUSPECT_WAIT_S + 0.5)
+            stopped_at.append(len(samples))
+            source.stop()
+
+        sender = threading.Thread(target=stop_later, daemon=True)
+        sender.start()
+        for sample in source:
+            samples.append(sample)
+        sender.join(timeout=5)
+    live = samples_frame(samples)
+    assert source.decoder.clock_resets == 0
+    assert next(s for s in source.summary().sources if s.name == "IMU_RATE").bad_timestamp == 1
+    assert stopped_at == [len(table)], "the last rate frame's sample came before the stop"
+    assert len(live) == len(table)
+    for c in COLUMNS:
+        x, y = table[c].to_numpy(), live[c].to_numpy()
+        assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), c
