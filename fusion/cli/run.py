@@ -218,7 +218,7 @@ def _run(args: argparse.Namespace) -> int:
     fused = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, has_pitch_rate=has_pitch_rate, options=fusion_opts,
                  smooth=smooth, camera_time_offset_s=offset_s, progress=progress)
     imu_only = imu_only_box["run"]
-    pb = plain_bank(imu_only.fused, vision, offset_s)
+    pb = plain_bank(imu_only.fused, vision, offset_s, fusion_opts.max_imu_gap_s)
     table = fused.fused.copy()
     table["roll_world_imu_only_deg"] = imu_only.fused["roll_world_deg"].to_numpy()
     table["bank_plain_deg"] = frames_to_samples(table["t_s"].to_numpy(), pb["t_s"].to_numpy(), pb["bank_plain_deg"].to_numpy())
