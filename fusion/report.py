@@ -251,22 +251,24 @@ def _table_html(summary: dict) -> str:
     return "\n".join(rows)
 
 
-def write_report(r: ReportInputs, out_dir: str | Path) -> dict:
-    """Write ``summary.json``, PNG plots and ``report.html`` into ``out_dir``; returns the summary."""
+def write_report(r: ReportInputs, out_dir: str | Path, plots: bool = True) -> dict:
+    """Write ``summary.json``, and with ``plots`` the PNG plots and ``report.html``, into
+    ``out_dir``; returns the summary."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = summarise(r)
-    figs = _plots(r) if len(r.fused) else {}
-    for name, png in figs.items():
-        _atomic_write(out_dir / name, png)
-    body = [f"<h1>{html.escape(r.title)}</h1>", _table_html(summary)]
-    for name, png in figs.items():
-        body.append(f'<h2>{html.escape(name[:-4])}</h2><img src="data:image/png;base64,{base64.b64encode(png).decode()}"/>')
-    page = ("<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(r.title) + "</title>"
-            "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
-            "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>"
-            + "\n".join(body) + "</body></html>")
-    _atomic_write(out_dir / "report.html", page.encode())
+    if plots:
+        figs = _plots(r) if len(r.fused) else {}
+        for name, png in figs.items():
+            _atomic_write(out_dir / name, png)
+        body = [f"<h1>{html.escape(r.title)}</h1>", _table_html(summary)]
+        for name, png in figs.items():
+            body.append(f'<h2>{html.escape(name[:-4])}</h2><img src="data:image/png;base64,{base64.b64encode(png).decode()}"/>')
+        page = ("<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(r.title) + "</title>"
+                "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
+                "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>"
+                + "\n".join(body) + "</body></html>")
+        _atomic_write(out_dir / "report.html", page.encode())
     _atomic_write(out_dir / "summary.json",
                   json.dumps(_finite_or_null(summary), indent=2, default=_json_default, allow_nan=False).encode())
     return summary

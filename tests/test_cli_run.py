@@ -120,6 +120,8 @@ def test_calibration_written_and_read_back(drive, tmp_path):
     sigma (one IMU sample's update moves them that little)."""
     r = vifusion("run", "--drive", drive, "--out", tmp_path / "a", "--quiet", "--no-report")
     assert r.returncode == 0, r.stderr
+    # --no-report skips the plots, not the summary (its warnings, counts and time offset)
+    assert sorted(p.name for p in (tmp_path / "a" / "report").iterdir()) == ["summary.json"]
     cal = tmp_path / "a" / "calibration.toml"
     from fusion.calibration import read_calibration
 

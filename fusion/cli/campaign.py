@@ -116,7 +116,7 @@ def _drive_row(fused, out: Path) -> dict:
     if summary.is_file():
         fusedrmse = json.loads(summary.read_text()).get("rmse_deg", {}).get("fused", {})
         for a in ("roll", "pitch", "yaw", "bank"):
-            if a in fusedrmse and math.isfinite(fusedrmse[a]):
+            if isinstance(fusedrmse.get(a), (int, float)) and math.isfinite(fusedrmse[a]):   # null: none
                 row[f"{a}_rmse_deg"] = fusedrmse[a]
     last = fused.iloc[-1]
     for c in fused.columns:

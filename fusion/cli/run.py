@@ -40,7 +40,7 @@ def add_parser(sub) -> None:
     p.add_argument("--estimate-time-offset", action="store_true",
                    help="estimate the camera-to-CAN clock offset from the data and apply it")
     p.add_argument("--debug-video", type=Path, help="also write the vision debug video here")
-    p.add_argument("--no-report", action="store_true", help="skip plots and HTML")
+    p.add_argument("--no-report", action="store_true", help="skip the plots and report.html (report/summary.json is written)")
     p.add_argument("--workers", type=workers_arg, default=None,
                    help="processes for the vision (default: the cores available; 1 with --debug-video)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -233,16 +233,15 @@ def _run(args: argparse.Namespace) -> int:
     except ValueError as e:   # a filter that ended without finite biases: nothing to carry on
         warnings.append(f"no calibration.toml written: {e}")
 
-    summary_out = None
-    if not args.no_report:
-        t0 = time.perf_counter()
-        summary_out = write_report(ReportInputs(
-            fused=fused.fused, vision=vision, imu_only=imu_only.fused, plain_bank=pb, truth=truth,
-            imu_truth=imu_truth, cov=fused.cov, counts={**fused.counts, **_can_counts(summary.as_dict())},
-            timings_s=timings, time_offset=time_offset, warnings=warnings, smoothed=smooth,
-            title=f"vifusion run: {files.video.name}", camera_time_offset_s=offset_s,
-            imu_calibration=calibration), tmp / "report")
-        timings["report"] = time.perf_counter() - t0
+    # summary.json always (warnings, counts, the time offset, accuracy): --no-report skips the plots
+    t0 = time.perf_counter()
+    summary_out = write_report(ReportInputs(
+        fused=fused.fused, vision=vision, imu_only=imu_only.fused, plain_bank=pb, truth=truth,
+        imu_truth=imu_truth, cov=fused.cov, counts={**fused.counts, **_can_counts(summary.as_dict())},
+        timings_s=timings, time_offset=time_offset, warnings=warnings, smoothed=smooth,
+        title=f"vifusion run: {files.video.name}", camera_time_offset_s=offset_s,
+        imu_calibration=calibration), tmp / "report", plots=not args.no_report)
+    timings["report"] = time.perf_counter() - t0
 
     if out.exists():
         shutil.rmtree(out)
@@ -299,10 +298,21 @@ def _write_csv(df, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def _offset_line(t: dict) -> str:
+    """The camera-offset estimate of ``summary.json``'s ``time_offset`` as one line."""
+    if t.get("reason"):
+        return f"not estimated ({t['reason']})"
+    corr = 1e3 * t["offset_s"]
+    return (f"correction {corr:+.1f} +- {1e3 * t['sigma_s']:.1f} ms to the configured {1e3 * t['configured_s']:g} ms "
+            f"(peak correlation {t['correlation']:.2f}, {t['frames']} frames): "
+            + ("applied" if t["applied"] else "not applied (within 2 sigma)"))
+
+
 def _print_summary(out, files, frames, imu, timings, warnings, summary, time_offset, total_s) -> None:
     drive_s = float(frames["t_s"].iloc[-1] - frames["t_s"].iloc[0]) if len(frames) > 1 else math.nan
     cal = f", {out}/calibration.toml" if (out / "calibration.toml").is_file() else ""
-    print(f"wrote {out}/vision.csv, {out}/fused.csv{cal}" + ("" if summary is None else f", {out}/report/report.html"))
+    report = "report.html" if (out / "report" / "report.html").is_file() else "summary.json"
+    print(f"wrote {out}/vision.csv, {out}/fused.csv{cal}, {out}/report/{report}")
     fixed = timings.get("start-up", 0.0) + timings.get("report", 0.0)
     per_drive = total_s - fixed
     print(f"time: total {total_s:.1f} s for a {drive_s:.1f} s drive; fixed costs {fixed:.1f} s "
@@ -310,7 +320,7 @@ def _print_summary(out, files, frames, imu, timings, warnings, summary, time_off
           f"the rest {per_drive:.1f} s = {100 * per_drive / drive_s:.1f} % of the drive's duration "
           f"(vision {timings.get('vision', 0):.1f}, CAN {timings.get('CAN decode', 0):.1f}, fusion {timings.get('fusion', 0):.1f})")
     if time_offset:
-        print(f"camera time offset estimate: {time_offset}")
+        print(f"camera time offset: {_offset_line(time_offset)}")
     if summary and summary.get("rmse_deg"):
         for src, vals in summary["rmse_deg"].items():
             cells = ", ".join(f"{k} {v:.3f}" for k, v in vals.items() if isinstance(v, float) and k != "valid_fraction")
