@@ -6,6 +6,8 @@ Every error names the file, the table and the key, and says what was expected, e
 
 from __future__ import annotations
 
+import difflib
+
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -71,6 +73,7 @@ class Table:
             raise ConfigError(f"{source}: [{name}] must be a table, got {type(data).__name__}")
         self.data, self.name, self.source = data, name, source
         self._read: set[str] = set()
+        self._known: set[str] = set()
 
     def where(self, key: str) -> str:
         return f"{self.source}: [{self.name}] {key}"
@@ -111,10 +114,18 @@ class Table:
             raise self.error(key, "is missing (expected a table)")
         return Table(self.data[key], f"{self.name}.{key}", self.source)
 
+    def known(self, *keys: str) -> None:
+        """Keys this table may hold that were not read (optional keys read only when present):
+        named among the known ones when :meth:`done` rejects a typo."""
+        self._known.update(keys)
+
     def done(self) -> None:
         unknown = sorted(set(self.data) - self._read)
         if unknown:
-            raise self.error(unknown[0], f"is not a known key (known: {', '.join(sorted(self._read)) or 'none'})")
+            known = sorted(self._read | self._known)
+            close = difflib.get_close_matches(unknown[0], known, n=1)
+            hint = f"did you mean {close[0]}? " if close else ""
+            raise self.error(unknown[0], f"is not a known key ({hint}known: {', '.join(known) or 'none'})")
 
 
 _KIND_TEXT = {
@@ -152,6 +163,7 @@ def _build(source: str, what: str, make: Callable[[], Any]) -> Any:
 
 
 def parse_camera(t: Table) -> Camera:
+    t.known("fx", "fy", "cx", "cy", "hfov_deg", "distortion")
     width = t.get("width", "int", min=1)
     height = t.get("height", "int", min=1)
     if t.has("hfov_deg") and not t.has("fx"):

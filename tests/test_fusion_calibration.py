@@ -101,6 +101,17 @@ def test_noise_values_beyond_any_vehicle_are_config_errors(table, key):
         fusion_options_from_table(table, "c.toml")
 
 
+def test_a_misspelt_key_is_named_with_the_key_it_likely_meant():
+    """A typo's error listed as known only the keys the parser had read so far: the noise keys,
+    read only when present, were missing from it (the one meant among them)."""
+    with pytest.raises(ConfigError) as e:
+        fusion_options_from_table({"gyro_noise_degs": 0.05}, "c.toml")
+    msg = str(e.value)
+    assert "[fusion] gyro_noise_degs is not a known key (did you mean gyro_noise_deg_s?" in msg
+    for key in ("vision_sigma_floor_deg", "accel_bias_m_s2", "no_pitch_rate_tau_s", "smooth"):
+        assert key in msg, key
+
+
 def test_a_run_without_pitch_gyro_hands_on_its_prior_for_that_bias(tmp_path):
     """No pitch gyro, no estimate of its bias: calibration.toml carries the prior the run started
     from (here a calibration's 0.2 +- 0.05 deg/s), not a default, and the smoother copes with
