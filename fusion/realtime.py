@@ -10,20 +10,26 @@ is behind a lock, and the vision estimator runs outside it. A bus clock that res
 decoder's :data:`imu.can_source.CLOCK_RESET_AFTER`) restarts the filter, keeping the IMU
 biases; so does a gap in the IMU samples (:attr:`fusion.engine.FusionOptions.max_imu_gap_s`).
 
-Example (a live bus; ``frames`` yields (capture time on the bus clock, image))::
+Example (a live bus; the README's "Embedding" has a whole program with a camera thread)::
 
-    live = LiveFusion(load_config("config.toml"))
+    live = LiveFusion("config.toml")      # or a DriveConfig (fusion.config.load_config)
     for msg in bus:                       # python-can messages
         live.push_can(msg)
         ...
-        live.push_frame(t_s, image)       # whenever a frame has been captured
+        live.push_frame(t_s, grey)        # whenever a frame has been captured (bus clock)
         est = live.estimate()             # Estimate with 1-sigma, rad
     write_calibration(live.calibration(), "calibration.toml")   # when the vehicle stops
+
+Frames: the estimator works on grey. The offline run hands it a video's decoded luma plane
+(:meth:`vision.video.FrameSource.grey_frames`); a BGR picture (OpenCV's ``VideoCapture``) is
+converted with ``cv2.COLOR_BGR2GRAY``, a grey a few levels off the luma after a codec's colour
+round trip: the same drive then gives somewhat different vision results (one more draw).
 """
 
 from __future__ import annotations
 
 import math
+import os
 import threading
 from collections import deque
 
@@ -35,7 +41,7 @@ from vision.options import options_from_table
 from vision.twistmap import travel_between
 
 from .calibration import calibration_from_state, pitch_gyro_prior_deg_s
-from .config import DriveConfig
+from .config import DriveConfig, load_config
 from .engine import Estimate, FusionStream
 from .errors import ConfigError
 from .options import fusion_options_from_table
@@ -47,7 +53,9 @@ __all__ = ["LiveFusion"]
 class LiveFusion:
     """CAN messages and frames in, :class:`fusion.engine.Estimate` out; see the module docstring."""
 
-    def __init__(self, config: DriveConfig) -> None:
+    def __init__(self, config: DriveConfig | str | os.PathLike) -> None:
+        if not isinstance(config, DriveConfig):
+            config = load_config(config)       # a config file's path
         if config.can is None:
             raise ConfigError("LiveFusion needs the [can] table of the config")
         source = str(config.path or "config")
