@@ -193,6 +193,21 @@ def test_no_road_twist_from_two_lines(two_lines):
     assert math.isnan(est.road_twist_rad_m) and math.isnan(est.road_twist_sigma_rad_m)
 
 
+@pytest.mark.parametrize("pitch_deg", [80.0, 84.0, 89.0, -89.0])
+def test_a_seed_past_the_horizon(three_lines, pitch_deg):
+    """A seed pitched so far that the BEV looks above the horizon (a corrupt previous result):
+    the image columns of the BEV rows came out near 1e19 and the marker search cast them to
+    integers, a segmentation fault at 84 deg (a review). Now the search is as without a seed:
+    valid and within 0.05 deg of the unseeded result, or invalid with a reason."""
+    sc, road, images, truth = three_lines
+    cold = estimate(images[0], sc.camera, sc.mount, None, road=road)
+    est = estimate(images[0], sc.camera, sc.mount, (0.0, math.radians(pitch_deg), 0.0), road=road)
+    if est.valid:
+        assert np.degrees(np.array(est.rpy_rad) - cold.rpy_rad) == pytest.approx(np.zeros(3), abs=0.05)
+    else:
+        assert est.reason
+
+
 def test_paper_method_on_a_level_frame(two_lines):
     """The paper's plain method (fixed-mount BEV, binary edges, one cross-section, Pade,
     eq. (21), straight-line vanishing point) works where its assumptions hold: level riding,

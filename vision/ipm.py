@@ -475,6 +475,13 @@ def _valid_columns(H, n_rows, u_max, W, Hh):  # pragma: no cover (numba)
                 hi[v] = min(hi[v], -ca / cb)
             elif ca < 0:
                 lo[v] = np.inf
+        # within [-1, u_max + 1] (an empty row keeps lo > hi): a pose past the horizon gives
+        # bounds of 1e19 and more, which the marker search casts to integers (undefined in
+        # numba: a segmentation fault with a seed pitched 84 deg); NaN (a NaN pose) is empty
+        if not lo[v] <= u_max:
+            lo[v] = u_max + 1.0
+        if not hi[v] >= 0.0:
+            hi[v] = -1.0
     return lo, hi
 
 
