@@ -306,3 +306,7 @@ def test_options_from_the_vision_table():
         options_from_table({"solver": "newton"}, "c.toml")
     with pytest.raises(VisionError, match=r"\[vision\] refine_iterations must be an integer"):
         options_from_table({"refine_iterations": 2.5}, "c.toml")
+    # the BEV's range: 1e9 m was a cv2.error from the warp, inf an OverflowError (a review)
+    for table in ({"x_max_m": 1e9}, {"x_max_m": "inf"}, {"x_min_m": -1.0}, {"x_min_m": 30.0, "x_max_m": 20.0}):
+        with pytest.raises(VisionError, match=r"c.toml: \[vision\] x_m(in|ax)_m"):
+            options_from_table(table, "c.toml")

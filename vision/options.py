@@ -184,6 +184,12 @@ class EstimatorOptions:
         _range("refine_iterations", self.refine_iterations, 0, 20)
         _range("max_warps", self.max_warps, 1, 10)
         _range("half_width_m", self.half_width_m, 1.0, 30.0)
+        if self.x_min_m is not None:
+            _range("x_min_m", self.x_min_m, 0.1, 200.0)
+        if self.x_max_m is not None:   # (beyond 200 m a marker is under a pixel at any resolution)
+            _range("x_max_m", self.x_max_m, 1.0, 200.0)
+        if self.x_min_m is not None and self.x_max_m is not None and not self.x_min_m < self.x_max_m:
+            raise VisionError(f"vision option x_min_m ({self.x_min_m}) must be below x_max_m ({self.x_max_m})")
         if self.dx_m is not None:
             _range("dx_m", self.dx_m, 0.005, 1.0)
         if self.dy_m is not None:
