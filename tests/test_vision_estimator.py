@@ -2,6 +2,7 @@
 in, pose out within tolerances stated in physical units; bad pictures are invalid, never an
 exception. The full-resolution figures are the benchmark's (tools/bench_vision.py)."""
 
+import dataclasses
 import math
 import tomllib
 from pathlib import Path
@@ -234,6 +235,11 @@ def test_damon_loop_on_three_lines(three_lines):
     assert abs(errors_deg(est, truth, 0)[0]) < 0.15
     ours = estimate(images[0], sc.camera, sc.mount, seed, road=road)
     assert abs(errors_deg(ours, truth, 0)[0]) < 0.1      # eq. (10), same tolerance reason as above
+    # Lines that balance but are not the road's (the config says lanes twice as wide): invalid,
+    # where the loop called any balance valid (on KITTI frames: lines 22.6 m apart, roll 171 deg)
+    wide = dataclasses.replace(road, lane_width_m=2 * road.lane_width_m)
+    est = estimate(images[0], sc.camera, sc.mount, seed, road=wide, options=EstimatorOptions.damon2018())
+    assert not est.valid and "not its lines" in est.reason, est.reason
 
 
 def test_solvers_and_options_agree_on_a_frame(two_lines):

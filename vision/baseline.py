@@ -106,13 +106,30 @@ def damon_estimate(est: Estimator, gray: np.ndarray, seed_rpy, keep_debug: bool 
     dbg = DebugInfo(bev_image=img, bev=bev, markers=markers, used=idx, vp_px=(float(vp[0]), float(vp[1])),
                     image_lines=segs) if keep_debug else None
     lateral, curvature, spacing = _lane_geometry(est, bev, lines, phi1, theta1, psi1)
-    ok = all(math.isfinite(v) for v in (r, p, y, s_psi, s_theta, lateral, curvature))
+    reason = ""
+    if not all(math.isfinite(v) for v in (r, p, y, s_psi, s_theta, lateral, curvature)):
+        reason = "non-finite result"
+    elif abs(spacing - L) > MAX_SPACING_ERROR * L:
+        # three bright stripes balanced, but not the road's lines (a review on KITTI frames:
+        # lines 14 and 22.6 m apart on a 3.5 m lane, valid, with rolls of -77 and 171 deg)
+        reason = f"lines {spacing:.2f} m apart against the road's lanes of {L:g} m: not its lines"
+    elif abs(r) > math.radians(MAX_ROLL_DEG):
+        reason = f"roll {math.degrees(r):.0f} deg beyond {MAX_ROLL_DEG:g} deg"
     return VisionEstimate(
-        r, p, y, step / math.sqrt(12.0), s_theta, s_psi, ok,
+        r, p, y, step / math.sqrt(12.0), s_theta, s_psi, not reason,
         curvature_1_m=curvature, lateral_offset_m=lateral, line_spacing_m=spacing,
         camera_xyz_rad=(phi1, theta1, psi1), vp_px=(float(vp[0]), float(vp[1])), n_lines=3,
         roll_equation="damon2018", iterations=iterations, warps=iterations, method="damon2018",
-        reason="" if ok else "non-finite result", debug=dbg)
+        reason=reason, debug=dbg)
+
+
+#: The loop's balance is accepted when the mean spacing of its three lines is within this share
+#: of the road's lane width, and its roll within MAX_ROLL_DEG (a motorcycle's lean stays under
+#: 65 deg): the 2018 paper checks neither, and says nothing of an uncertainty. Its roll sigma
+#: here is the step's quantisation (``delta_phi / sqrt(12)``), a lower bound: give the fusion the
+#: 2024 method, whose sigmas come from its fits.
+MAX_SPACING_ERROR = 0.35
+MAX_ROLL_DEG = 70.0
 
 
 def _lane_geometry(est: Estimator, bev, lines, phi1, theta1, psi1):
