@@ -121,8 +121,8 @@ def read_truth(path: Path | None, columns: tuple[str, ...] = TRUTH_COLUMNS) -> p
         raise InputError(f"{path}: not a CSV file ({' '.join(str(e).split())})") from None
     have = [c for c in columns[1:] if c in df.columns]
     if "t_s" not in df.columns or (len(columns) > 1 and not have):
-        need = "a t_s column" if "t_s" not in df.columns else f"any of {', '.join(columns[1:])}"
-        raise InputError(f"{path}: not a truth table: no {need} (INTERFACE.md, drive on disk)")
+        need = "no t_s column" if "t_s" not in df.columns else f"none of the columns {', '.join(columns[1:])}"
+        raise InputError(f"{path}: not a truth table: {need} (INTERFACE.md, drive on disk)")
     text = [c for c in have if not pd.api.types.is_numeric_dtype(df[c])]
     if text:
         raise InputError(f"{path}: truth column {text[0]} is not numeric")
