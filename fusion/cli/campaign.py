@@ -114,7 +114,10 @@ def _drive_row(fused, out: Path) -> dict:
            "bank_sigma_median_deg": float(np.median(fused["bank_sigma_deg"]))}
     summary = out / "report" / "summary.json"
     if summary.is_file():
-        fusedrmse = json.loads(summary.read_text()).get("rmse_deg", {}).get("fused", {})
+        data = json.loads(summary.read_text())
+        # the run's own warnings (no valid vision, an incomplete log, gaps...): 'ok' means it ran
+        row["warnings"] = " | ".join(data.get("warnings") or [])
+        fusedrmse = data.get("rmse_deg", {}).get("fused", {})
         for a in ("roll", "pitch", "yaw", "bank"):
             if isinstance(fusedrmse.get(a), (int, float)) and math.isfinite(fusedrmse[a]):   # null: none
                 row[f"{a}_rmse_deg"] = fusedrmse[a]
