@@ -246,17 +246,18 @@ class StreamDecoder:
         self._gate.append((aid, idx, t, payload, received_s, prev))
         return self._pump()
 
-    def _pump(self, force: bool = False) -> list[ImuSample]:
+    def _pump(self, force: bool = False, force_one: bool = False) -> list[ImuSample]:
         """Frames through the glitch gate, in arrival order. A frame stamped more than
         ``gap_limit_s`` after the previous frame of its ID waits, and the frames after it with
         it, for that ID's next frame: more than ``gap_limit_s`` behind it, the stamp was a glitch
         (counted as a bad timestamp, dropped); otherwise the ID resumed after a gap, and the
         frame is taken, then those that waited. The log path's rule, frame by frame: without it
         one far-future stamp made the next 20 frames 'backwards' and restarted the bus clock.
-        ``force`` (end of stream, quiet bus): a frame still waiting is taken."""
+        ``force`` (end of stream): a frame still waiting is taken; ``force_one`` (a quiet bus):
+        the one waiting now is, a later one waits for its own ID's next frame."""
         out: list[ImuSample] = []
         gate, limit = self._gate, self.gap_limit_s
-        while gate or (force and self._suspect is not None):
+        while gate or ((force or force_one) and self._suspect is not None):
             sus = self._suspect
             if sus is None:
                 aid, idx, t, payload, received_s, prev = gate.popleft()
@@ -266,10 +267,10 @@ class StreamDecoder:
                     out += self._accept(aid, idx, t, payload, received_s)
                 continue
             nxt = next((g for g in gate if g[0] == sus[0]), None)
-            if nxt is None and not force and len(gate) < SUSPECT_WAIT_FRAMES \
+            if nxt is None and not (force or force_one) and len(gate) < SUSPECT_WAIT_FRAMES \
                     and not (gate and gate[-1][4] - sus[4] > SUSPECT_WAIT_S):
                 break                                    # its ID's next frame is yet to come
-            self._suspect = None
+            self._suspect, force_one = None, False
             if nxt is not None and sus[2] - nxt[2] > limit:
                 counts = self._msg_counts[sus[0]]
                 counts["bad_timestamp"] = counts.get("bad_timestamp", 0) + 1
@@ -444,7 +445,7 @@ class StreamDecoder:
         margin_s = QUIET_BUS_MARGIN_S if margin_s is None else margin_s
         out = []
         if self._suspect is not None and now_s - self._suspect[4] > SUSPECT_WAIT_S:   # its ID fell silent
-            out += self._pump(force=True)
+            out += self._pump(force_one=True)
         while self._held and now_s - self._held[0][4] > self._reorder_s + margin_s:   # held too long
             out += self._release(self._held[0][0], now_s)
         while self._open and now_s - self._open[0].received_s > self.window_s + margin_s:
