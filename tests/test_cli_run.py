@@ -327,6 +327,10 @@ def test_out_folder_with_other_files_is_left_alone(tmp_path):
     f.write_text("x")
     r = vifusion("run", "--out", f, "--quiet")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "is a file" in r.stderr, r.stderr
+    # the operating system's refusals in words ("Not a directory", "File exists" before)
+    one_line_error(vifusion("campaign", SAMPLE_DRIVE, "--out", f, "--quiet"), f"{f}: exists already")
+    one_line_error(vifusion("simulate", ROOT / "configs" / "scenarios" / "test" / "tiny_banked_curve.toml",
+                            "--out", f / "drive", "--quiet"), "a file is in the way where a folder is needed")
 
 
 def test_a_table_given_as_a_value_is_a_config_error(tmp_path):

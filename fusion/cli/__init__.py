@@ -8,6 +8,7 @@ user can fix (bad input, bad config) are printed as one line ``error: ...`` with
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
 import sys
@@ -100,6 +101,17 @@ def workers_arg(text: str) -> int:
     return n
 
 
+#: What the operating system's refusals mean for an output or input path, in words.
+_OS_WORDS = {errno.ENOTDIR: "a file is in the way where a folder is needed",
+             errno.EEXIST: "exists already (a file where a folder is needed?)",
+             errno.ENOENT: "no such file or folder (or its parent folder is missing)",
+             errno.EACCES: "permission denied", errno.EPERM: "not permitted",
+             errno.ENOSPC: "no space left on the device", errno.EROFS: "on a read-only file system"}
+
+
 def _one_line(e: BaseException) -> str:
-    text = str(e) if not isinstance(e, OSError) or not e.filename else f"{e.filename}: {e.strerror}"
+    if isinstance(e, OSError) and e.filename:
+        text = f"{e.filename}: {_OS_WORDS.get(e.errno, e.strerror)}"
+    else:
+        text = str(e)
     return " ".join(text.split()) or type(e).__name__
