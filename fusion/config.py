@@ -121,6 +121,9 @@ class Table:
 
     def done(self) -> None:
         unknown = sorted(set(self.data) - self._read)
+        if unknown and unknown[0] in self._known:    # a key of the table, but not with the others
+            raise self.error(unknown[0], f"is not used together with the keys given "
+                                         f"({', '.join(sorted(k for k in self._read if k in self.data))}): one or the other")
         if unknown:
             known = sorted(self._read | self._known)
             close = difflib.get_close_matches(unknown[0], known, n=1)

@@ -233,7 +233,6 @@ def frames_to_samples(t_s: np.ndarray, frame_t_s: np.ndarray, values: np.ndarray
     ``max_gap_s`` apart, NaN before the first frame, after the last and across longer gaps (no
     value where there was no vision)."""
     t_s = np.asarray(t_s, dtype=float)
-    frame_t_s = np.asarray(frame_t_s, dtype=float)
     out = np.full(t_s.size, math.nan)
     if len(frame_t_s) == 0:
         return out
@@ -241,11 +240,18 @@ def frames_to_samples(t_s: np.ndarray, frame_t_s: np.ndarray, values: np.ndarray
     k = np.clip(np.searchsorted(frame_t_s, t_s, side="right"), 1, len(frame_t_s) - 1)
     gap = frame_t_s[k] - frame_t_s[k - 1] if len(frame_t_s) > 1 else np.zeros(t_s.size)
     exact = np.isin(t_s, frame_t_s)
-    # a gap is longer than the frames' own period (1.5 times its median): a 10 fps camera's
-    # 0.1 s comes out a rounding step over 0.1 for 40 % of its intervals, which were all lost
-    period = float(np.median(np.diff(frame_t_s))) if len(frame_t_s) > 1 else 0.0
-    out[(gap > max(max_gap_s, 1.5 * period)) & ~exact] = math.nan
+    out[(gap > max_gap_s) & ~exact] = math.nan
     return out
+
+
+def frame_gap_limit_s(all_frame_t_s: np.ndarray) -> float:
+    """The gap between valid frames beyond which the vision counts as lost: 0.1 s
+    (:data:`PLAIN_BANK_MAX_FRAME_GAP_S`), or 1.5 frame periods of a slower camera (the median
+    interval of all its frames, valid or not): a 10 fps camera's 0.1 s comes out a rounding
+    step over 0.1 for 40 % of its intervals, which were all lost."""
+    t = np.asarray(all_frame_t_s, dtype=float)
+    period = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    return max(PLAIN_BANK_MAX_FRAME_GAP_S, 1.5 * period)
 
 
 def plain_bank(fused_imu_only: pd.DataFrame, vision: pd.DataFrame, camera_time_offset_s: float = 0.0,

@@ -446,6 +446,10 @@ class StreamDecoder:
         out = []
         if self._suspect is not None and now_s - self._suspect[4] > SUSPECT_WAIT_S:   # its ID fell silent
             out += self._pump(force_one=True)
+        if self._suspect is not None:
+            # frames wait in the glitch gate: the samples and held frames they may join or
+            # precede wait with them (the log path has them all at once)
+            return out
         while self._held and now_s - self._held[0][4] > self._reorder_s + margin_s:   # held too long
             out += self._release(self._held[0][0], now_s)
         while self._open and now_s - self._open[0].received_s > self.window_s + margin_s:
@@ -555,12 +559,13 @@ class LiveSource:
         window = dec.window_s
         while not self._stop.is_set():
             timeout = wait_max
-            if dec._open:
-                timeout = min(wait_max, max(0.0, dec._open[0].received_s + window + QUIET_BUS_MARGIN_S - clock()))
-            if dec._held:
-                timeout = min(timeout, max(0.0, dec._held[0][4] + dec._reorder_s + QUIET_BUS_MARGIN_S - clock()))
-            if dec._suspect is not None:
-                timeout = min(timeout, max(0.0, dec._suspect[4] + SUSPECT_WAIT_S - clock()))
+            if dec._suspect is not None:        # nothing else expires while frames are gated
+                timeout = min(wait_max, max(0.0, dec._suspect[4] + SUSPECT_WAIT_S - clock()))
+            else:
+                if dec._open:
+                    timeout = min(wait_max, max(0.0, dec._open[0].received_s + window + QUIET_BUS_MARGIN_S - clock()))
+                if dec._held:
+                    timeout = min(timeout, max(0.0, dec._held[0][4] + dec._reorder_s + QUIET_BUS_MARGIN_S - clock()))
             msg = recv(timeout=timeout)
             if msg is not None:
                 yield from dec.push(msg, clock())

@@ -110,6 +110,11 @@ def test_a_misspelt_key_is_named_with_the_key_it_likely_meant():
     assert "[fusion] gyro_noise_degs is not a known key (did you mean gyro_noise_deg_s?" in msg
     for key in ("vision_sigma_floor_deg", "accel_bias_m_s2", "no_pitch_rate_tau_s", "smooth"):
         assert key in msg, key
+    # a key of the table that the others given leave unused is said so (not 'did you mean' itself)
+    from fusion.config import Table, parse_camera
+
+    with pytest.raises(ConfigError, match=r"\[camera\] hfov_deg is not used together with the keys given \(fx, "):
+        parse_camera(Table({"width": 640, "height": 360, "hfov_deg": 80.0, "fx": 300.0}, "camera", "c.toml"))
 
 
 def test_a_run_without_pitch_gyro_hands_on_its_prior_for_that_bias(tmp_path):

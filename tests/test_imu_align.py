@@ -219,3 +219,42 @@ def test_a_frame_behind_its_own_id_within_the_tolerance(tmp_path):
     _assert_same(table, live)
     assert [s.backwards for s in summary.sources] == [s.backwards for s in live_summary.sources]
     assert sum(s.backwards for s in summary.sources) == 1
+
+
+def test_twins_when_frames_wait_in_the_glitch_gate_on_a_live_clock(tmp_path):
+    """The wheel speed (20 Hz) silent for 0.2 s, longer than the gap limit, then back: its first
+    frame waits in the glitch gate for the next one (50 ms), and the IMU frames after it wait
+    with it. The decoder's quiet-bus expiry, called after every frame as LiveSource calls it
+    (arrival in real time), closed the open samples meanwhile: an accelerometer frame held in
+    the gate missed its sample (a review). Nothing expires while frames are gated: the same
+    samples and counts as the log path."""
+    imu, speed = sim_imu(duration_s=1.5, speed_rate_hz=20.0, seed=1)
+    src = tmp_path / "src.csv"
+    write_can_log(src, imu, speed, extra_traffic=False)
+    msgs = list(can.LogReader(src))
+    t0 = msgs[0].timestamp
+    rate_t = sorted(m.timestamp for m in msgs if m.arbitration_id == 0x174)
+    out = []
+    for m in msgs:
+        if m.arbitration_id == 0x122:
+            if 0.5 < m.timestamp - t0 < 0.7:
+                continue
+            # stamped 0.2 ms after the rate frame before it: between a rate frame and its accel
+            k = np.searchsorted(rate_t, m.timestamp) - 1
+            m = can.Message(timestamp=rate_t[k] + 0.0002, arbitration_id=0x122, data=m.data, is_extended_id=False)
+        out.append(m)
+    out.sort(key=lambda m: m.timestamp)
+    path = tmp_path / "gap.csv"
+    with can.Logger(path) as w:
+        for m in out:
+            w.on_message_received(m)
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    got = []
+    for m in can.LogReader(path):
+        arrival = m.timestamp - t0 + 100.0
+        got += dec.push(m, arrival)
+        got += dec.expire(arrival)
+    got += dec.flush()
+    _assert_same(table, samples_frame(got))
+    assert [s.unaligned for s in dec.summary().sources] == [s.unaligned for s in summary.sources] == [0, 0, 0]

@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     drive = SAMPLE_DRIVE
     live = LiveFusion(drive / "config.toml")           # a config file's path, or a DriveConfig
     frames = pd.read_csv(drive / "frames.csv")         # capture times on the bus clock
-    bus_t = [-math.inf]                                # the newest CAN stamp read
+    bus_t = [-math.inf]                                # the newest IMU sample's time (the bus clock)
     due_t = [frames["t_s"].iloc[0]]                    # the capture time of the camera's next frame
     stop = threading.Event()
 
@@ -80,10 +80,15 @@ def main(argv: list[str] | None = None) -> int:
                 msg = rx.recv(timeout=1.0)
                 if msg is None:                        # a second without frames: the drive is over
                     break
-                while not args.realtime and msg.timestamp - due_t[0] > MAX_CAMERA_LAG_S and cam.is_alive():
-                    time.sleep(0.001)                  # a frame is due and not handed in yet
+                # a frame is due, captured, and not handed in yet: let the camera catch up (not
+                # across a gap in the bus, nor for a stamp far ahead: the camera waits for the
+                # IMU's clock, which a glitch does not move)
+                while (not args.realtime and msg.timestamp - due_t[0] > MAX_CAMERA_LAG_S
+                       and bus_t[0] >= due_t[0] and cam.is_alive()):
+                    time.sleep(0.001)
                 live.push_can(msg)
-                bus_t[0] = msg.timestamp
+                if live.samples:
+                    bus_t[0] = live.stream.t_s
                 t0 = msg.timestamp if t0 is None else t0
                 if msg.timestamp - t0 >= shown + 1.0 and live.samples:
                     shown = math.floor(msg.timestamp - t0)

@@ -96,7 +96,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..drive import check_overlap, check_truth_overlap, read_frame_times, read_truth
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
-    from ..pipeline import frame_speeds, frames_to_samples, fuse, plain_bank
+    from ..pipeline import frame_gap_limit_s, frame_speeds, frames_to_samples, fuse, plain_bank
     from ..report import ReportInputs, write_report
     from ..timing import estimate_camera_offset
 
@@ -221,7 +221,8 @@ def _run(args: argparse.Namespace) -> int:
     pb = plain_bank(imu_only.fused, vision, offset_s, fusion_opts.max_imu_gap_s)
     table = fused.fused.copy()
     table["roll_world_imu_only_deg"] = imu_only.fused["roll_world_deg"].to_numpy()
-    table["bank_plain_deg"] = frames_to_samples(table["t_s"].to_numpy(), pb["t_s"].to_numpy(), pb["bank_plain_deg"].to_numpy())
+    table["bank_plain_deg"] = frames_to_samples(table["t_s"].to_numpy(), pb["t_s"].to_numpy(), pb["bank_plain_deg"].to_numpy(),
+                                                frame_gap_limit_s(vision["t_s"].to_numpy()))
     timings["fusion"] = time.perf_counter() - t0
     warnings += fused.warnings
     _write_csv(table, tmp / "fused.csv")
