@@ -477,7 +477,7 @@ def _valid_columns(H, n_rows, u_max, W, Hh):  # pragma: no cover (numba)
                 lo[v] = np.inf
         # within [-1, u_max + 1] (an empty row keeps lo > hi): a pose past the horizon gives
         # bounds of 1e19 and more, which the marker search casts to integers (undefined in
-        # numba: a segmentation fault with a seed pitched 84 deg); NaN (a NaN pose) is empty
+        # numba: a segmentation fault with a seed pitched 84 deg)
         if not lo[v] <= u_max:
             lo[v] = u_max + 1.0
         if not hi[v] >= 0.0:
