@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for name in SUBCOMMANDS:
         importlib.import_module(f".{name}", __name__).add_parser(sub)
+    for p in sub.choices.values():      # 'vifusion COMMAND --debug' as well as 'vifusion --debug COMMAND'
+        if "--debug" not in p._option_string_actions:
+            p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
     return parser
 
 
