@@ -94,7 +94,10 @@ class VisionEstimate:
     """One frame's estimate.
 
     Angles of the vehicle relative to the road, ZYX, INTERFACE conventions (positive roll leans
-    right, positive pitch is nose down, positive yaw is nose left), rad; NaN when not ``valid``.
+    right, positive pitch is nose down, positive yaw is nose left), rad. When not ``valid``: NaN
+    where no estimate was made (too few lines), the rejected values where a check refused them
+    (out of range, implausible lines; ``reason`` says which), kept for diagnosis: never a
+    measurement.
 
     Attributes
     ----------
