@@ -327,7 +327,8 @@ def _gray(image) -> tuple[np.ndarray | None, str]:
         code = cv2.COLOR_BGR2GRAY if g.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
         g = cv2.cvtColor(g, code)
     if g.dtype != np.uint8:
-        g = np.clip(g, 0, 255).astype(np.uint8)
+        # rounded (a cast truncates: a 16-bit picture came out 0.46 grey levels dark on average)
+        g = np.clip(np.rint(g), 0, 255).astype(np.uint8)
     return g, ""
 
 
