@@ -23,7 +23,9 @@ Example (a live bus; the README's "Embedding" has a whole program with a camera 
 Frames: the estimator works on grey. The offline run hands it a video's decoded luma plane
 (:meth:`vision.video.FrameSource.grey_frames`); a BGR picture (OpenCV's ``VideoCapture``) is
 converted with ``cv2.COLOR_BGR2GRAY``, a grey a few levels off the luma after a codec's colour
-round trip: the same drive then gives somewhat different vision results (one more draw).
+round trip: the same drive then gives somewhat different vision results (another draw; on the
+640x360 sample drive, whose vision is overconfident in its curve, the fused bank varies between
+0.2 and 0.46 deg RMS with such changes, README "Commands").
 """
 
 from __future__ import annotations
