@@ -34,7 +34,9 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     files = simulate(scenario, args.out, progress=not args.quiet, max_frames=args.frames,
                      render_video=not args.no_video, overwrite=args.force)
-    print(f"wrote {files.root} ({scenario.name}, {scenario.duration_s:g} s, "
-          f"{scenario.camera.width}x{scenario.camera.height} @ {scenario.video.fps:g} fps) "
+    n = scenario.n_frames if args.frames is None else min(args.frames, scenario.n_frames)
+    video = ("no video" if args.no_video else
+             f"{n} frames {scenario.camera.width}x{scenario.camera.height} @ {scenario.video.fps:g} fps")
+    print(f"wrote {files.root} ({scenario.name}: {scenario.duration_s:g} s of truth and CAN, {video}) "
           f"in {time.perf_counter() - t0:.1f} s")
     return 0
