@@ -162,7 +162,8 @@ def _build(source: str, what: str, make: Callable[[], Any]) -> Any:
     try:
         return make()
     except (VisionError, ImuError) as e:
-        raise ConfigError(f"{source}: [{what}] {e}") from None
+        text = str(e)
+        raise ConfigError(f"{source}: {text}" if text.startswith(f"[{what}") else f"{source}: [{what}] {text}") from None
 
 
 def parse_camera(t: Table) -> Camera:

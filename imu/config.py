@@ -13,6 +13,7 @@ from typing import Mapping
 import numpy as np
 
 from .errors import ImuConfigError
+from .units import si_factor
 
 __all__ = ["CHANNELS", "GYRO", "ACCEL", "ImuMount", "CanMapping"]
 
@@ -113,9 +114,10 @@ class CanMapping:
                 raise ImuConfigError(f"[can.signals] {ch}: unknown channel, expected one of {', '.join(CHANNELS)}")
             if not isinstance(ref, str) or ref.count(".") != 1 or ref.startswith(".") or ref.endswith("."):
                 raise ImuConfigError(f'[can.signals] {ch} must be "MESSAGE.SIGNAL", got {ref!r}')
-        for ch in self.units:
+        for ch, unit in self.units.items():
             if ch not in self.signals:
                 raise ImuConfigError(f"[can.units] {ch}: no such mapped channel")
+            si_factor(unit, ch, f"[can.units] {ch}")   # a unit of its quantity: said at the config, not at decode
         if not (self.gap_limit_s > 0 and math.isfinite(self.gap_limit_s)):
             raise ImuConfigError(f"[can] gap_limit_s must be > 0, got {self.gap_limit_s}")
         if not 0 < self.align_window_s < self.gap_limit_s:

@@ -238,13 +238,14 @@ def test_MAPPING_MISMATCH_names_the_signal(tmp_path, clean, signals, pattern):
     _one_line(e)
 
 
-def test_UNKNOWN_UNIT_override(tmp_path, clean):
-    _, _, msgs, _, _ = clean
-    path = _write(msgs[:50], tmp_path / "x.log")
+def test_UNKNOWN_UNIT_override():
+    """An unknown unit in [can.units] is refused where the mapping is made (the config: its
+    error then names the file), not when the log is decoded."""
     m = sim_mapping()
-    mapping = CanMapping(m.dbc_path, m.signals, units={"gyro_x": "furlong/fortnight"})
     with pytest.raises(ImuConfigError, match=r'\[can.units\] gyro_x: unknown unit "furlong/fortnight"'):
-        read_log(path, mapping, MOUNT_FRD)
+        CanMapping(m.dbc_path, m.signals, units={"gyro_x": "furlong/fortnight"})
+    with pytest.raises(ImuConfigError, match=r'\[can.units\] gyro_x: unit "m/s" is a speed, but gyro_x needs'):
+        CanMapping(m.dbc_path, m.signals, units={"gyro_x": "m/s"})
 
 
 @pytest.mark.parametrize("name, content, pattern", [
