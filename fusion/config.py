@@ -7,7 +7,6 @@ Every error names the file, the table and the key, and says what was expected, e
 from __future__ import annotations
 
 import difflib
-
 import math
 import tomllib
 from dataclasses import dataclass, field

@@ -89,7 +89,7 @@ def _run(args: argparse.Namespace) -> int:
     from imu import CHANNELS, VALUE_COLUMNS, read_log
     from imu.samples import never_seen
     from vision.options import options_from_table
-    from vision.video import start_numba, default_workers, estimate_video
+    from vision.video import default_workers, estimate_video, start_numba
 
     from ..calibration import calibration_table, pitch_gyro_prior_deg_s, read_calibration, write_calibration
     from ..config import load_config
