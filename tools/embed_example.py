@@ -10,7 +10,7 @@ the camera thread by the camera's grab loop; the rest stays.
 
 Usage::
 
-    .venv/bin/python tools/embed_example.py [--realtime] [--out DIR]
+    .venv/bin/python tools/embed_example.py [--realtime] [--out DIR] [--drive DIR]
 
 Without ``--realtime`` the drive runs as fast as the machine allows: the bus reader then waits
 for the camera when it is more than 0.15 s ahead of it (on a vehicle the two keep pace by
@@ -43,9 +43,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realtime", action="store_true", help="send the CAN frames at their recorded pace")
     ap.add_argument("--out", type=Path, default=Path("out/embed_example"), help="where calibration.toml goes")
+    ap.add_argument("--drive", type=Path, default=SAMPLE_DRIVE,
+                    help="a drive folder as 'vifusion simulate' writes it (default: the bundled sample)")
     args = ap.parse_args(argv)
 
-    drive = SAMPLE_DRIVE
+    drive = args.drive
     live = LiveFusion(drive / "config.toml")           # a config file's path, or a DriveConfig
     frames = pd.read_csv(drive / "frames.csv")         # capture times on the bus clock
     bus_t = [-math.inf]                                # the newest IMU sample's time (the bus clock)
