@@ -46,6 +46,11 @@ class ReportInputs:
     imu_calibration: dict | None = None
 
 
+#: Share of samples whose NEES should lie inside its 95 % band (issue 5's bar): below it the
+#: report warns that the fused sigma does not describe the errors against the truth.
+CONSISTENT_SHARE = 0.9
+
+
 def summarise(r: ReportInputs) -> dict:
     """Numbers of the report: RMSE per source against truth, consistency, counts, timings."""
     out: dict = {"title": r.title, "smoothed": r.smoothed, "counts": r.counts, "timings_s": r.timings_s,
@@ -77,7 +82,15 @@ def summarise(r: ReportInputs) -> dict:
             acc["imu_only"] = rmse_table(r.imu_only, r.truth, t0, angles=("roll_world", "pitch_world"))
         out["rmse_deg"] = acc
         if all(f"{a}_deg" in r.truth for a in ("roll", "pitch", "yaw", "bank")):
-            out["consistency"] = asdict(consistency(f, r.truth, r.cov, t0))
+            c = consistency(f, r.truth, r.cov, t0)
+            out["consistency"] = asdict(c)
+            if c.fraction_inside < CONSISTENT_SHARE:
+                # the sigmas do not describe the errors against this truth: say which way
+                worse = ("overconfident: the errors exceed their sigmas" if c.fraction_above >= c.fraction_below
+                         else "overcautious: the sigmas exceed the errors")
+                out["warnings"] = [*out["warnings"], f"fused sigma against the truth: NEES inside its 95 % band on "
+                                   f"{100 * c.fraction_inside:.0f} % of samples ({100 * c.fraction_above:.0f} % above, "
+                                   f"{100 * c.fraction_below:.0f} % below), {worse}"]
     return out
 
 

@@ -87,10 +87,18 @@ def test_run_without_inputs_processes_the_bundled_sample(tmp_path):
     assert r.returncode == 0, r.stderr
     fused = pd.read_csv(out / "fused.csv")
     assert fused["t_s"].iloc[-1] - fused["t_s"].iloc[0] > 11.0
-    rmse = json.loads((out / "report" / "summary.json").read_text())["rmse_deg"]
+    summary = json.loads((out / "report" / "summary.json").read_text())
+    rmse = summary["rmse_deg"]
     assert rmse["fused"]["bank"] < 0.3 and rmse["fused"]["roll"] < 0.3 and rmse["fused"]["yaw"] < 0.3, rmse
     assert rmse["fused"]["roll"] < rmse["vision"]["roll"] and rmse["fused"]["yaw"] < rmse["vision"]["yaw"], rmse
     assert rmse["fused"]["bank"] < rmse["imu_minus_vision"]["bank"], rmse
+    # its 640x360 vision is overconfident in the banked curve (docs/fusion-notes.md): the report
+    # says so when the NEES misses the 90 % (66 % measured), and says nothing otherwise
+    c = summary["consistency"]
+    said = [w for w in summary["warnings"] if w.startswith("fused sigma against the truth")]
+    assert len(said) == (c["fraction_inside"] < 0.9), (c, summary["warnings"])
+    if said:
+        assert ("overconfident" in said[0]) == (c["fraction_above"] >= c["fraction_below"]), said
 
 
 def test_shipped_sample_drive_is_what_the_simulator_makes(tmp_path):
