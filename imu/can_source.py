@@ -436,6 +436,19 @@ class StreamDecoder:
         self._samples.stamp(T)
         return ImuSample(received_s=released_s, **vals)
 
+    def next_expiry_s(self) -> float:
+        """When :meth:`expire` (default margin) next has something to do, ``time.perf_counter()``
+        seconds: a frame waiting in the glitch gate too long (nothing else expires meanwhile),
+        a held frame (reorder tolerance) or an open sample past its wait; ``inf``: nothing waits."""
+        if self._suspect is not None:
+            return self._suspect[4] + SUSPECT_WAIT_S
+        t = math.inf
+        if self._open:
+            t = self._open[0].received_s + self.window_s + QUIET_BUS_MARGIN_S
+        if self._held:
+            t = min(t, self._held[0][4] + self._reorder_s + QUIET_BUS_MARGIN_S)
+        return t
+
     def expire(self, now_s: float | None = None, margin_s: float | None = None) -> list[ImuSample]:
         """On a quiet bus: emit samples whose clock frame arrived more than window + margin ago.
 
@@ -556,20 +569,11 @@ class LiveSource:
         recv = self.bus.recv
         clock = time.perf_counter
         wait_max = self.poll_s
-        window = dec.window_s
         while not self._stop.is_set():
-            timeout = wait_max
-            if dec._suspect is not None:        # nothing else expires while frames are gated
-                timeout = min(wait_max, max(0.0, dec._suspect[4] + SUSPECT_WAIT_S - clock()))
-            else:
-                if dec._open:
-                    timeout = min(wait_max, max(0.0, dec._open[0].received_s + window + QUIET_BUS_MARGIN_S - clock()))
-                if dec._held:
-                    timeout = min(timeout, max(0.0, dec._held[0][4] + dec._reorder_s + QUIET_BUS_MARGIN_S - clock()))
-            msg = recv(timeout=timeout)
+            msg = recv(timeout=min(wait_max, max(0.0, dec.next_expiry_s() - clock())))
             if msg is not None:
                 yield from dec.push(msg, clock())
-            if dec._open or dec._held or dec._suspect is not None:
+            if dec.next_expiry_s() < math.inf:
                 yield from dec.expire(clock())
         yield from dec.flush()
 
