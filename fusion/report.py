@@ -271,20 +271,25 @@ def write_report(r: ReportInputs, out_dir: str | Path, plots: bool = True) -> di
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = summarise(r)
     if plots:
-        figs = _plots(r) if len(r.fused) else {}
-        for name, png in figs.items():
-            _atomic_write(out_dir / name, png)
-        body = [f"<h1>{html.escape(r.title)}</h1>", _table_html(summary)]
-        for name, png in figs.items():
-            body.append(f'<h2>{html.escape(name[:-4])}</h2><img src="data:image/png;base64,{base64.b64encode(png).decode()}"/>')
-        page = ("<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(r.title) + "</title>"
-                "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
-                "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>"
-                + "\n".join(body) + "</body></html>")
-        _atomic_write(out_dir / "report.html", page.encode())
+        _write_pages(r, summary, out_dir)
     _atomic_write(out_dir / "summary.json",
                   json.dumps(_finite_or_null(summary), indent=2, default=_json_default, allow_nan=False).encode())
     return summary
+
+
+def _write_pages(r: ReportInputs, summary: dict, out_dir: Path) -> None:
+    """The PNG plots and the self-contained ``report.html`` (the plots inlined)."""
+    figs = _plots(r) if len(r.fused) else {}
+    for name, png in figs.items():
+        _atomic_write(out_dir / name, png)
+    body = [f"<h1>{html.escape(r.title)}</h1>", _table_html(summary)]
+    for name, png in figs.items():
+        body.append(f'<h2>{html.escape(name[:-4])}</h2><img src="data:image/png;base64,{base64.b64encode(png).decode()}"/>')
+    page = ("<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(r.title) + "</title>"
+            "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
+            "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>"
+            + "\n".join(body) + "</body></html>")
+    _atomic_write(out_dir / "report.html", page.encode())
 
 
 def _finite_or_null(o):

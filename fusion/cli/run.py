@@ -306,7 +306,7 @@ def _offset_line(t: dict) -> str:
     corr = 1e3 * t["offset_s"]
     return (f"correction {corr:+.1f} +- {1e3 * t['sigma_s']:.1f} ms to the configured {1e3 * t['configured_s']:g} ms "
             f"(peak correlation {t['correlation']:.2f}, {t['frames']} frames): "
-            + ("applied" if t["applied"] else "not applied (within 2 sigma)"))
+            + ("applied" if t["applied"] else f"not applied (within {OFFSET_SIGNIFICANCE:g} sigma)"))
 
 
 def _print_summary(out, files, frames, imu, timings, warnings, summary, time_offset, total_s) -> None:
