@@ -81,6 +81,9 @@ class Table:
         return ConfigError(f"{self.where(key)} {msg}")
 
     def has(self, key: str) -> bool:
+        """Whether ``key`` is given; an optional key asked about is a key of the table (named
+        among the known ones when :meth:`done` rejects a typo)."""
+        self._known.add(key)
         return key in self.data
 
     def get(self, key: str, kind: str, default: Any = ..., *, min: float | None = None,
@@ -114,7 +117,7 @@ class Table:
         return Table(self.data[key], f"{self.name}.{key}", self.source)
 
     def known(self, *keys: str) -> None:
-        """Keys this table may hold that were not read (optional keys read only when present):
+        """Keys this table may hold that may go unread and unasked (another key given instead):
         named among the known ones when :meth:`done` rejects a typo."""
         self._known.update(keys)
 

@@ -72,8 +72,6 @@ _NOISE_KEYS = {
 def fusion_options_from_table(table: dict | None, source: str = "config") -> tuple[FusionOptions, RunSettings]:
     """Parse ``[fusion]``; errors name the file and key (:class:`fusion.errors.ConfigError`)."""
     t = Table(table or {}, "fusion", source)
-    t.known(*_NOISE_KEYS, "accel_bias_sigma_m_s2", "gyro_bias_sigma_deg_s", "accel_bias_m_s2", "gyro_bias_deg_s",
-            "accel_noise_m_s2")
     noise = NoiseModel()
     changes = {}
     for key, (name, conv, lo, hi) in _NOISE_KEYS.items():
