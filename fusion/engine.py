@@ -243,11 +243,19 @@ class FusionStream:
             return
         tw = tuple(float(g) if math.isfinite(g) else 0.0 for g in twist_m)
         t_s = float(t_s)
+        if not math.isfinite(t_s):
+            self.counts["vision_invalid"] += 1   # a NaN time would be applied at every sample
+            return
         newest = self._hist[-1].t if self._hist else math.nan
-        if t_s > newest + max(self.options.history_s, _MAX_VISION_LEAD_S):
-            # far ahead of the IMU (a clock mix-up): it would wait in the queue for good
+        if self.too_far_ahead(t_s):
             self.counts["vision_future"] += 1
             return
+        if not self._hist and self._pending and t_s > self._pending[-1].t_s:
+            # no IMU sample yet (the camera started first, or the IMU is silent): keep only the
+            # history's span of results, not every one until the IMU comes
+            self._drop_pending(lambda p: p.t_s < t_s - self.options.history_s)
+            while self._vision_times and self._vision_times[0] < t_s - self.options.history_s:
+                self._vision_times.popleft()
         while self._vision_times and self._vision_times[0] < newest - self.options.history_s:
             self._vision_times.popleft()
         if t_s in self._vision_times:
@@ -263,6 +271,11 @@ class FusionStream:
         else:
             self.counts["vision_late"] += 1
             self._apply_late(item)
+
+    def too_far_ahead(self, t_s: float) -> bool:
+        """Whether a vision result captured at ``t_s`` is too far ahead of the newest IMU sample
+        to be kept (a clock mix-up): it would wait in the queue for good."""
+        return bool(self._hist) and t_s > self._hist[-1].t + max(self.options.history_s, _MAX_VISION_LEAD_S)
 
     def restart(self, clock_reset: bool = False) -> None:
         """Start again from the next IMU sample, keeping what is known of the IMU: its biases

@@ -71,7 +71,7 @@ class LiveFusion:
         #: Frames not after the previous frame (skipped), restarts of the filter on a bus clock
         #: that went back. (IMU samples the decoder released without every gyro and
         #: accelerometer value are the stream's ``counts["imu_invalid"]``.)
-        self.counts = dict(frames_out_of_order=0, clock_restarts=0)
+        self.counts = dict(frames_out_of_order=0, frames_bad_time=0, clock_restarts=0)
         self.warnings: list[str] = []
         if self.settings.estimate_time_offset:
             self.warnings.append("[fusion] estimate_time_offset needs the whole drive and is not done live: "
@@ -109,14 +109,24 @@ class LiveFusion:
         The estimator is told the distance travelled since the last frame from the wheel speed
         (for the road's twist, :attr:`vision.options.EstimatorOptions.road_twist`), by the rule
         of the offline run (:func:`fusion.pipeline.last_speed`). A frame not after the previous
-        one (a repeated or reordered frame) is skipped and counted (``counts``): the estimator's
-        road map moves forward only; the previous result is returned.
+        one (a repeated or reordered frame) or not finite is skipped and counted (``counts``):
+        the estimator's road map moves forward only; the previous result is returned. So is a
+        frame too far ahead of the bus (``stream.counts["vision_future"]``: a bad stamp, a camera
+        clock that stepped), before the estimator, and it does not hold back the frames after it.
         From one thread at a time (the estimator keeps the road map between frames)."""
         t_cap = t_s + self.settings.camera_time_offset_s
         with self._lock:
             t0, v0 = self._last_frame
+            if not math.isfinite(t_cap):
+                self.counts["frames_bad_time"] += 1
+                return self._last_estimate
             if not t_cap > t0 and math.isfinite(t0):
                 self.counts["frames_out_of_order"] += 1
+                return self._last_estimate
+            if self.stream.too_far_ahead(t_cap):
+                # a bad stamp, a camera clock that stepped: refused before the estimator, whose
+                # road map would move by the stamp's travel, and not the last frame's time
+                self.stream.counts["vision_future"] += 1
                 return self._last_estimate
             v = float(last_speed(*np.array(self._speeds).T, t_cap)[0]) if self._speeds else math.nan
             self._last_frame = (t_cap, v)
