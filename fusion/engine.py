@@ -29,7 +29,7 @@ import numpy as np
 
 from vision.frames import wrap_angle
 
-from .ekf import (DIM_X, AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, accel_r_scale,
+from .ekf import (DIM_X, GRAVITY_M_S2, AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, accel_r_scale,
                   road_ahead_as_seen, vision_hx, vision_jacobian)
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
@@ -45,6 +45,9 @@ _PERIOD_SAMPLES = 20
 #: A vision result dated further ahead of the newest IMU sample (and of history_s) is a clock
 #: mix-up, not a result the IMU has yet to reach, s.
 _MAX_VISION_LEAD_S = 1.0
+#: The roll's 1-sigma at a start without a wheel speed (:meth:`FusionStream._init_from_accel`):
+#: a motorcycle's lean, which the accelerometer alone cannot see, up to about 45 deg.
+_ROLL_SIGMA_WITHOUT_SPEED_RAD = math.radians(25.0)
 
 
 def _all_finite(a: np.ndarray) -> bool:
@@ -308,12 +311,24 @@ class FusionStream:
     # ---- core ----
 
     def _init_from_accel(self, s: _ImuSample) -> None:
+        """Roll and pitch relative to level from the first sample's specific force, the
+        centripetal terms taken out: in a steady turn ``f_y = g sin(roll) + v r`` and ``f_z =
+        g cos(roll) - v q`` (module docstring of :mod:`fusion.ekf`). Without a wheel speed yet
+        the turn cannot be taken out (a lean of 40 deg reads as about 20): the roll's sigma is
+        then :data:`_ROLL_SIGMA_WITHOUT_SPEED_RAD` until the gravity updates, which wait for the
+        speed, bring it in."""
         ekf = self.ekf
-        v = s.speed if math.isfinite(s.speed) else 0.0  # the first wheel speed sets it properly
+        known = math.isfinite(s.speed)
+        v = s.speed if known else 0.0  # the first wheel speed sets the state properly
         f, r = s.accel - ekf.x[S.ACCEL_BIAS], s.gyro[2] - ekf.x[S.GYRO_BIAS_Z]
-        ekf.x[S.ROLL_W] = math.atan2(f[1] - v * r, f[2])
-        ekf.x[S.PITCH_W] = math.asin(max(-1.0, min(1.0, -f[0] / 9.80665)))
+        if ekf.has_pitch_rate:
+            ekf.x[S.ROLL_W] = math.atan2(f[1] - v * r, f[2] + v * (s.gyro[1] - ekf.x[S.GYRO_BIAS_Y]))
+        else:
+            ekf.x[S.ROLL_W] = math.asin(max(-1.0, min(1.0, (f[1] - v * r) / GRAVITY_M_S2)))
+        ekf.x[S.PITCH_W] = math.asin(max(-1.0, min(1.0, -f[0] / GRAVITY_M_S2)))
         ekf.x[S.SPEED] = v
+        if not known:
+            ekf.P[S.ROLL_W, S.ROLL_W] = max(ekf.P[S.ROLL_W, S.ROLL_W], _ROLL_SIGMA_WITHOUT_SPEED_RAD**2)
         self._initialized = True
 
     def _process_sample(self, s: _ImuSample, prev: _ImuSample | None = None, visions=(), replayed=()) -> None:
@@ -491,9 +506,20 @@ class FusionStream:
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
             # First frame: take yaw, bank and grade from it so that the filter starts consistent.
+            # bank = roll_w - roll and grade = pitch_w - pitch carry the uncertainty of roll_w and
+            # pitch_w (a start without a wheel speed: 25 deg, _init_from_accel) and are
+            # correlated with them; a prior of their own said the bank was known to 5 deg when the
+            # world roll was 40 deg off, and kept the bank from following the world roll's
+            # corrections (one right-hand curve, uncalibrated IMU: bank 0.305 -> 0.227 deg RMS,
+            # tests/test_fusion_calibration.py).
             ekf.x[S.YAW_REL] = angles[2]
             ekf.x[S.BANK] = ekf.x[S.ROLL_W] - angles[0]
             ekf.x[S.GRADE] = ekf.x[S.PITCH_W] - angles[1]
+            for road, level in ((S.BANK, S.ROLL_W), (S.GRADE, S.PITCH_W)):
+                own = ekf.P[road, road]
+                ekf.P[road, :] = ekf.P[level, :]
+                ekf.P[:, road] = ekf.P[:, level]
+                ekf.P[road, road] = max(own, ekf.P[level, level])
             if math.isfinite(kappa):
                 ekf.x[S.CURVATURE] = kappa
             self._vision_initialized = True
