@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from vision.video import TWIST_RESPONSE_COLUMNS
 
-from .ekf import S, relative_outputs
+from .ekf import GRAVITY_M_S2, S, relative_outputs
 from .engine import FusionOptions, FusionStream
 from .errors import InputError
 from .smoother import rts_smooth
@@ -184,7 +184,40 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     if counts["imu_gaps"]:
         warnings.append(f"the IMU samples have {counts['imu_gaps']} gap(s) longer than {options.max_imu_gap_s:g} s: "
                         "the filter started again after each, keeping the IMU biases")
+    warnings += imu_setup_warnings(accel, speed_known, counts["gravity_rejected"], options.gravity_every)
     return FusedRun(table, counts, smooth, rel_cov[1], warnings)
+
+
+#: Share of the gravity updates refused as outliers over which a run warns: about 10 % on the
+#: simulated drives (the differenced gyro's noise through the lever arm, which the update's
+#: noise leaves out: docs/fusion-notes.md, 2026-11-26 third session).
+GRAVITY_REFUSED_WARN = 0.3
+
+
+def imu_setup_warnings(accel_m_s2: np.ndarray, speed_known: np.ndarray, gravity_refused: int,
+                       gravity_every: int = 1) -> list[str]:
+    """Warnings for an IMU whose setup cannot be right, which the filter alone does not refuse:
+    a specific force whose median magnitude is not about 1 g (a unit: g read as m/s^2), a
+    vehicle z axis that does not point up (``[imu] axes``), no wheel speed (the gravity
+    reference, which needs it for the centripetal term, was never used), and most gravity
+    updates refused as outliers (axes, lever arm, units)."""
+    out = []
+    g = GRAVITY_M_S2
+    mag = float(np.median(np.linalg.norm(accel_m_s2, axis=1))) if len(accel_m_s2) else math.nan
+    if not 0.7 * g < mag < 1.3 * g:
+        out.append(f"the accelerometer reads a median of {mag:.3g} m/s^2, not about {g:.2f}: check the unit of its "
+                   "signals in the DBC or [can.units]; the gravity reference is wrong")
+    elif float(np.median(accel_m_s2[:, 2])) < 0.5 * g:
+        out.append(f"the vehicle's z axis does not point up (median specific force on z {np.median(accel_m_s2[:, 2]):+.2f} "
+                   "m/s^2, about +9.81 expected): check [imu] axes")
+    attempted = int(np.sum(speed_known)) // max(1, gravity_every)
+    if not np.any(speed_known):
+        out.append("no wheel speed: the gravity reference (it needs the speed for the centripetal term) was never "
+                   "used; the world roll, pitch and the bank rest on the gyros and the vision")
+    elif attempted and gravity_refused > GRAVITY_REFUSED_WARN * attempted:
+        out.append(f"{gravity_refused} of {attempted} gravity updates refused as outliers: the accelerometer "
+                   "disagrees with the model (check [imu] axes and position_m, the accelerometer's units)")
+    return out
 
 
 #: A wheel speed older than this at a frame (s) gives the frame no speed.

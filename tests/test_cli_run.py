@@ -499,3 +499,30 @@ def test_time_offset_estimate_corrects_the_configured_offset(tmp_path):
     assert second["time_offset"]["applied"] is False and second["camera_time_offset_s"] == pytest.approx(-0.2, abs=1e-9)
     assert abs(second["time_offset"]["offset_s"]) < 2 * second["time_offset"]["sigma_s"]
     assert any("not applied" in w for w in second["warnings"])
+
+
+@pytest.mark.parametrize("fault, words", [
+    ("axes", "z axis does not point up"),
+    ("unit", "median of 1.0"),
+])
+def test_an_imu_setup_that_cannot_be_right_is_a_warning(copy, tmp_path, fault, words):
+    """The IMU mounted upside down in the config (axes x, y, z for an FRD unit: the vehicle's z
+    reads -1 g) or its accelerometer's DBC unit m/s^2 for values in g (1 m/s^2 for gravity): the
+    run goes on, but says why its world roll and bank are wrong. A review found both silent
+    (exit 0; with the axes flipped the bank came out -171 deg with a sigma of 0.8; with the
+    unit, every gravity update refused)."""
+    if fault == "axes":
+        cfg = copy / "config.toml"
+        text = cfg.read_text()
+        axes = next(line for line in text.splitlines() if line.startswith("axes ="))
+        cfg.write_text(text.replace(axes, 'axes = ["x", "y", "z"]', 1))
+    else:
+        dbc = next(copy.glob("*.dbc"))
+        text = dbc.read_text()
+        dbc.write_text("\n".join(line.replace('"g"', '"m/s^2"') if " SG_ Acc" in line else line
+                                 for line in text.splitlines()))
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "out" / "report" / "summary.json").read_text())
+    assert any(words in w for w in summary["warnings"]), summary["warnings"]
+    assert words in r.stderr
