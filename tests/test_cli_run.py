@@ -526,3 +526,11 @@ def test_an_imu_setup_that_cannot_be_right_is_a_warning(copy, tmp_path, fault, w
     summary = json.loads((tmp_path / "out" / "report" / "summary.json").read_text())
     assert any(words in w for w in summary["warnings"]), summary["warnings"]
     assert words in r.stderr
+
+
+def test_an_output_path_the_system_refuses_is_one_line(drive, tmp_path):
+    """A file name longer than the file system takes (255 bytes): one line naming it, exit
+    status 2. A review found it, a full disk and a read-only file system giving tracebacks:
+    only some kinds of operating-system error were taken as the user's."""
+    r = vifusion("run", "--drive", drive, "--out", tmp_path / ("a" * 300), "--quiet", "--no-report")
+    one_line_error(r, "file name too long")

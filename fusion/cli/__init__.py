@@ -44,9 +44,10 @@ __all__ = ["main", "USER_ERRORS"]
 #: Subcommands, in the order ``vifusion --help`` lists them.
 SUBCOMMANDS = ("run", "campaign", "vision", "can", "simulate")
 
-#: Exceptions that mean bad input rather than a bug: reported in one line, exit status 2.
-USER_ERRORS = (FusionError, ImuError, VisionError, FileNotFoundError, PermissionError, IsADirectoryError,
-               NotADirectoryError, FileExistsError)
+#: Exceptions that mean bad input rather than a bug: reported in one line, exit status 2. Every
+#: operating-system refusal is the user's to fix (a path, a full disk, a read-only file
+#: system, a name too long), not only missing files.
+USER_ERRORS = (FusionError, ImuError, VisionError, OSError)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -109,7 +110,8 @@ _OS_WORDS = {errno.ENOTDIR: "a file is in the way where a folder is needed",
              errno.EEXIST: "exists already (a file where a folder is needed?)",
              errno.ENOENT: "no such file or folder (or its parent folder is missing)",
              errno.EACCES: "permission denied", errno.EPERM: "not permitted",
-             errno.ENOSPC: "no space left on the device", errno.EROFS: "on a read-only file system"}
+             errno.ENOSPC: "no space left on the device", errno.EROFS: "on a read-only file system",
+             errno.ENAMETOOLONG: "file name too long"}
 
 
 def _one_line(e: BaseException) -> str:
