@@ -534,3 +534,28 @@ def test_an_output_path_the_system_refuses_is_one_line(drive, tmp_path):
     only some kinds of operating-system error were taken as the user's."""
     r = vifusion("run", "--drive", drive, "--out", tmp_path / ("a" * 300), "--quiet", "--no-report")
     one_line_error(r, "file name too long")
+
+
+def test_no_debug_video_is_left_when_the_frames_end_in_an_error(copy, tmp_path):
+    """The drive's video as a folder of pictures, the tenth unreadable: the run stops with one
+    line, and the debug video is not left under its name with the nine frames before (a review
+    found it renamed to look complete)."""
+    import cv2
+
+    folder = copy / "video"
+    folder.mkdir()
+    cap = cv2.VideoCapture(str(copy / "video.mp4"))
+    k = 0
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        cv2.imwrite(str(folder / f"{k:06d}.png"), img)
+        k += 1
+    cap.release()
+    (copy / "video.mp4").unlink()
+    (folder / "000009.png").write_bytes(b"not a picture")
+    dbg = tmp_path / "debug.mp4"
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--debug-video", dbg, "--quiet", "--no-report")
+    one_line_error(r, "000009.png")
+    assert not dbg.exists() and not list(tmp_path.glob("debug*")), list(tmp_path.iterdir())

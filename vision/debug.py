@@ -117,7 +117,8 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
 class DebugWriter:
     """Writes :func:`render_debug` pictures to a video (mp4v; ``.avi`` gets MJPG).
 
-    The file is written under a temporary name and renamed by :meth:`close`.
+    The file is written under a temporary name and renamed by :meth:`close` (removed when the
+    frames ended in an error).
     """
 
     #: The containers it writes: mp4v for ``.mp4 .mov .mkv``, MJPG for ``.avi``.
@@ -153,8 +154,13 @@ class DebugWriter:
             pic = cv2.resize(pic, self.size)
         self.writer.write(pic)
 
-    def close(self) -> None:
+    def close(self, complete: bool = True) -> None:
+        """Finish the file: renamed to its name when ``complete``, else (an error or an
+        interrupt ended the frames) removed, so that no partial video looks complete."""
         if self.writer is not None:
             self.writer.release()
             self.writer = None
-            os.replace(self.tmp, self.path)
+            if complete:
+                os.replace(self.tmp, self.path)
+            else:
+                self.tmp.unlink(missing_ok=True)

@@ -391,9 +391,12 @@ def _estimate_piece(src: FrameSource, wanted: list[int], times: dict, setup, deb
                 writer.write(img, e, times[i])
             if tick is not None:
                 tick(1)
-    finally:
+    except BaseException:
         if writer is not None:
-            writer.close()
+            writer.close(complete=False)
+        raise
+    if writer is not None:
+        writer.close()
     return rows, n_read
 
 
