@@ -190,8 +190,9 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
 
 #: Share of the gravity updates refused as outliers over which a run warns: about 10 % on the
 #: simulated drives (the differenced gyro's noise through the lever arm, which the update's
-#: noise leaves out: docs/fusion-notes.md, 2026-11-26 third session).
-GRAVITY_REFUSED_WARN = 0.3
+#: noise leaves out: docs/fusion-notes.md, 2026-11-26 third session), 38 % on the 2 s test
+#: drive without a pitch gyro; all of them with an accelerometer read in the wrong unit.
+GRAVITY_REFUSED_WARN = 0.5
 
 
 def imu_setup_warnings(accel_m_s2: np.ndarray, speed_known: np.ndarray, gravity_refused: int,

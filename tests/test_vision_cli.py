@@ -220,3 +220,18 @@ def test_a_corrupt_video_is_read_up_to_the_damage(tmp_path):
     n_bgr = sum(1 for _ in _frames_from(src, 0))
     n_grey = sum(1 for _ in _frames_from(src, 0, luma=True))
     assert 0 < n_grey == n_bgr < len(FrameSource(SAMPLE_DRIVE / "video.mp4"))
+
+
+def test_a_numbered_picture_missing_is_a_missing_frame(tmp_path):
+    """Pictures named by number (000000.png ...) are frames at their number less the first's:
+    with 000002.png missing, 000003.png is frame 3, timed by frames.csv's row for frame 3, and
+    frame 2 is missing. Before, name order made it frame 2: every picture after a gap took the
+    time of the one before it (a review). Numbers of different widths sort by value."""
+    from vision.video import _frames_from
+
+    for n in (0, 1, 3, 10):
+        cv2.imwrite(str(tmp_path / (f"{n:06d}.png" if n < 10 else f"{n}.png")), np.full((4, 6, 3), n, np.uint8))
+    src = FrameSource(tmp_path)
+    assert len(src) == 11 and src.files[2] is None
+    got = {i: int(img[0, 0, 0]) for i, img in _frames_from(src, 0)}
+    assert got == {0: 0, 1: 1, 3: 3, 10: 10}

@@ -49,7 +49,8 @@ class FrameSource:
     Parameters
     ----------
     path : str or Path
-        Video file, or folder of ``.png`` / ``.jpg`` / ``.jpeg`` files (name order).
+        Video file, or folder of ``.png`` / ``.jpg`` / ``.jpeg`` files (name order; numbered
+        names at their number less the first's, so that a missing picture is a missing frame).
 
     Raises
     ------
@@ -61,11 +62,13 @@ class FrameSource:
         self.path = Path(path)
         if not self.path.exists():
             raise VisionError(f"{self.path}: no such video file or folder")
-        self.files: list[Path] | None = None
+        #: A folder's pictures by frame index (None where a numbered picture is missing).
+        self.files: list[Path | None] | None = None
         if self.path.is_dir():
-            self.files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-            if not self.files:
+            files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if not files:
                 raise VisionError(f"{self.path}: folder has no .png or .jpg frames")
+            self.files = _by_number(files)
         else:
             cap = cv2.VideoCapture(str(self.path))
             ok = cap.isOpened()
@@ -91,6 +94,20 @@ class FrameSource:
         luma plane (:func:`_luma_frames`), pictures converted to grey."""
         for _, img in _frames_from(self, 0, luma=True):
             yield img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+
+
+def _by_number(files: list[Path]) -> list[Path | None]:
+    """Pictures in name order, or, when every name is a number (``000123.png``), at their
+    number less the first's: a picture missing from a numbered sequence is then a missing frame,
+    not a shift of every later frame onto the time of the one before it."""
+    if not all(p.stem.isdigit() for p in files) or len({int(p.stem) for p in files}) < len(files):
+        return files
+    numbers = [int(p.stem) for p in files]
+    first = min(numbers)
+    out: list[Path | None] = [None] * (max(numbers) - first + 1)
+    for p, n in zip(files, numbers):
+        out[n - first] = p
+    return out
 
 
 def count_frames(path: str | os.PathLike) -> int:
@@ -238,6 +255,8 @@ def _frames_from(src: FrameSource, start: int, luma: bool = False) -> Iterator[t
     if src.files is not None:
         for i in range(start, len(src.files)):
             f = src.files[i]
+            if f is None:
+                continue          # a numbered picture missing: that frame is missing
             img = cv2.imread(str(f), cv2.IMREAD_COLOR)
             if img is None:
                 raise VisionError(f"{f}: not a readable picture")
