@@ -559,3 +559,20 @@ def test_no_debug_video_is_left_when_the_frames_end_in_an_error(copy, tmp_path):
     r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--debug-video", dbg, "--quiet", "--no-report")
     one_line_error(r, "000009.png")
     assert not dbg.exists() and not list(tmp_path.glob("debug*")), list(tmp_path.iterdir())
+
+
+def test_can_frames_the_decoder_did_not_use_are_warnings(copy, tmp_path):
+    """Five IMU_RATE frames cut to 4 bytes: the run says how many frames of which message it
+    did not use (a review found them only in ``vifusion can``'s report)."""
+    log = copy / "can.asc"
+    lines, cut = log.read_text().splitlines(), 0
+    for k, line in enumerate(lines):
+        f = line.split()
+        if cut < 5 and len(f) == 14 and f[2] == "174" and f[5] == "8":
+            lines[k] = " ".join(f[:5] + ["4"] + f[6:10])
+            cut += 1
+    log.write_text("\n".join(lines) + "\n")
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "out" / "report" / "summary.json").read_text())
+    assert any("IMU_RATE" in w and "5 frames not used (wrong length 5" in w for w in summary["warnings"]), summary["warnings"]

@@ -163,6 +163,7 @@ def _run(args: argparse.Namespace) -> int:
         end = imu["t_s"].iloc[-1] - imu["t_s"].iloc[0]
         warnings.append(f"{files.can_log}: log incomplete, read up to {end:.1f} s ({why}): "
                         "the fused table ends there")
+    warnings += _can_problems(summary, files.can_log)
     gaps = imu.attrs.get("gaps", [])
     for source, start_s, duration_s in gaps[:5]:
         warnings.append(f"CAN gap: no {source} frames for {duration_s:.3f} s from {start_s:.3f} s (never interpolated)")
@@ -249,6 +250,22 @@ def _run(args: argparse.Namespace) -> int:
     tmp.rename(out)
     _print_summary(out, files, frames, imu, timings, warnings, summary_out, time_offset, time.perf_counter() - t_start)
     return 0
+
+
+def _can_problems(summary, log) -> list[str]:
+    """Warnings for the mapped frames the decoder did not use and the lines it could not read
+    (``vifusion can`` lists them per message): the samples they belonged to are missing or
+    incomplete."""
+    kinds = ("wrong_length", "duplicates", "backwards", "remote", "other_channel", "bad_timestamp", "unaligned")
+    out = []
+    for s in summary.sources:
+        skipped = ", ".join(f"{k.replace('_', ' ')} {getattr(s, k)}" for k in kinds if getattr(s, k))
+        if skipped:
+            out.append(f"{log}: {s.name} ({s.frame_id}): {s.skipped} frames not used ({skipped}; "
+                       "vifusion can lists them)")
+    if summary.bad_lines:
+        out.append(f"{log}: {summary.bad_lines} unreadable lines skipped")
+    return out
 
 
 def _can_counts(can: dict) -> dict:
