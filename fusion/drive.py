@@ -158,3 +158,18 @@ def check_overlap(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: str, log_
             f"and the CAN log's IMU samples ({imu_t[0]:.3f} .. {imu_t[-1]:.3f} s, {log_name}): "
             "are both on the CAN log's clock?")
     return span
+
+
+#: Share of the frames outside the IMU samples' span over which a run warns (a drive's camera
+#: may start a little before the bus or stop a little after it).
+FRAMES_OUTSIDE_WARN = 0.1
+
+
+def frames_outside_warning(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: str) -> str | None:
+    """A warning when many frames fall outside the IMU samples' span (not used: a frames.csv in
+    milliseconds, or shifted), or None."""
+    before, after = int(np.sum(frame_t < imu_t[0])), int(np.sum(frame_t > imu_t[-1]))
+    if before + after <= FRAMES_OUTSIDE_WARN * len(frame_t):
+        return None
+    return (f"{before + after} of {len(frame_t)} frames fall outside the CAN log's IMU samples ({before} before, "
+            f"{after} after) and are not used: are {frames_name}'s times in seconds on the CAN log's clock?")

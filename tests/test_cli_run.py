@@ -576,3 +576,16 @@ def test_can_frames_the_decoder_did_not_use_are_warnings(copy, tmp_path):
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "out" / "report" / "summary.json").read_text())
     assert any("IMU_RATE" in w and "5 frames not used (wrong length 5" in w for w in summary["warnings"]), summary["warnings"]
+
+
+def test_frames_mostly_outside_the_can_log_are_a_warning(copy, tmp_path):
+    """frames.csv shifted 1.5 s later than the 2 s CAN log: the frames past the log's end are
+    not used, and the run says how many and asks about the clock (a review found only 'vision
+    valid on 11 of 30' said)."""
+    frames = pd.read_csv(copy / "frames.csv")
+    frames["t_s"] += 1.5
+    frames.to_csv(copy / "frames.csv", index=False)
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "out" / "report" / "summary.json").read_text())
+    assert any("fall outside the CAN log's IMU samples (0 before" in w for w in summary["warnings"]), summary["warnings"]
