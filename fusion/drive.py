@@ -129,6 +129,11 @@ def read_truth(path: Path | None, columns: tuple[str, ...] = TRUTH_COLUMNS) -> p
     t = pd.to_numeric(df["t_s"], errors="coerce").to_numpy(dtype=float)
     if len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         raise InputError(f"{path}: t_s must hold two or more finite, increasing times")
+    for c in have:
+        v = df[c].to_numpy(dtype=float)
+        if np.any(np.isinf(v)) or not np.any(np.isfinite(v)):
+            raise InputError(f"{path}: truth column {c} " + ("holds infinite values" if np.any(np.isinf(v))
+                                                           else "has no value"))
     return df
 
 

@@ -589,3 +589,13 @@ def test_frames_mostly_outside_the_can_log_are_a_warning(copy, tmp_path):
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "out" / "report" / "summary.json").read_text())
     assert any("fall outside the CAN log's IMU samples (0 before" in w for w in summary["warnings"]), summary["warnings"]
+
+
+@pytest.mark.parametrize("value, words", [(float("nan"), "bank_deg has no value"), (float("inf"), "bank_deg holds infinite")])
+def test_a_truth_column_without_values_is_an_error(copy, tmp_path, value, words):
+    """A truth column all NaN, or holding inf: one line naming it. A review found it scored as
+    'bank nan' with eight lines of numpy warnings."""
+    truth = pd.read_csv(copy / "truth.csv")
+    truth["bank_deg"] = value
+    truth.to_csv(copy / "truth.csv", index=False)
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "truth.csv", words)
