@@ -599,3 +599,16 @@ def test_a_truth_column_without_values_is_an_error(copy, tmp_path, value, words)
     truth["bank_deg"] = value
     truth.to_csv(copy / "truth.csv", index=False)
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "truth.csv", words)
+
+
+def test_outputs_that_cannot_be_written_are_refused_before_the_work(drive, tmp_path):
+    """`vifusion vision --out X.csv` where X.csv is a folder, and a campaign drive named
+    campaign.csv: refused at once. A review found both found out after every frame or drive,
+    leaving X.csv.partial behind."""
+    (tmp_path / "x.csv").mkdir()
+    r = vifusion("vision", "--video", drive / "video.mp4", "--config", drive / "config.toml", "--out", tmp_path / "x.csv")
+    one_line_error(r, "is a directory")
+    assert not list(tmp_path.glob("*.partial"))
+    named = tmp_path / "campaign.csv"
+    shutil.copytree(drive, named)
+    one_line_error(vifusion("campaign", named, "--out", tmp_path / "c"), "campaign's table")

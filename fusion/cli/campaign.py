@@ -58,6 +58,11 @@ def run(args: argparse.Namespace) -> int:
         from ..errors import InputError
 
         raise InputError(f"two drives named {dup[0]}: their outputs would share {args.out / dup[0]}")
+    clash = [n for n in names if n in ("campaign.csv", "campaign.parquet")]
+    if clash:   # said now, not after every drive
+        from ..errors import InputError
+
+        raise InputError(f"a drive named {clash[0]}: its output folder would be the campaign's table")
     args.out.mkdir(parents=True, exist_ok=True)
     calibration = args.calibration
     rows = []

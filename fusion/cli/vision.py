@@ -56,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.out.suffix.lower() not in (".csv", ".parquet"):
         raise InputError(f"{args.out}: the vision table is written as .csv or .parquet")
+    if args.out.is_dir():   # said now, not after every frame
+        raise InputError(f"{args.out}: is a directory, expected a file name")
     if args.debug_video is not None:
         DebugWriter.check(args.debug_video)
 
