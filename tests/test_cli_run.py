@@ -612,3 +612,16 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_work(drive, tmp_p
     named = tmp_path / "campaign.csv"
     shutil.copytree(drive, named)
     one_line_error(vifusion("campaign", named, "--out", tmp_path / "c"), "campaign's table")
+
+
+def test_a_reader_that_goes_away_is_no_traceback(drive, tmp_path):
+    """`vifusion can LOG ... | head -1`: the reader closes the pipe (here before the first line);
+    the command ends without a word on stderr (a review found BrokenPipeError's traceback; as
+    an operating-system error it then said 'error: Broken pipe')."""
+    p = subprocess.Popen([sys.executable, "-m", "fusion", "can", next(drive.glob("can.*")), "--config",
+                          drive / "config.toml", "--out", tmp_path / "imu.parquet"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p.stdout.close()
+    err = p.stderr.read()
+    p.wait(timeout=60)
+    assert err.strip() == "", err

@@ -72,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
 
     with can.Bus(interface="virtual", channel=CHANNEL, preserve_timestamps=True) as tx, \
             can.Bus(interface="virtual", channel=CHANNEL, preserve_timestamps=True) as rx:
-        threading.Thread(target=vehicle, args=(tx,), daemon=True).start()
+        ecus = threading.Thread(target=vehicle, args=(tx,), daemon=True)
+        ecus.start()
         cam = threading.Thread(target=camera, daemon=True)
         cam.start()
         t0, shown = None, 0
@@ -80,8 +81,10 @@ def main(argv: list[str] | None = None) -> int:
         try:
             while True:
                 msg = rx.recv(timeout=1.0)
-                if msg is None:                        # a second without frames: the drive is over
-                    break
+                if msg is None:
+                    if ecus.is_alive():                # a quiet bus: wait for it (on a vehicle: for ever)
+                        continue
+                    break                              # the recorded drive is over
                 # a frame is due, captured, and not handed in yet: let the camera catch up (not
                 # across a gap in the bus, nor for a stamp far ahead: the camera waits for the
                 # IMU's clock, which a glitch does not move)

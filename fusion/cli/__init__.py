@@ -84,6 +84,10 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     try:
         return int(args.func(args) or 0)
+    except BrokenPipeError:
+        # the reader of the output went away ('vifusion can LOG ... | head'): no more to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except USER_ERRORS as e:
         if args.debug:
             raise
