@@ -129,6 +129,7 @@ class _ImuSample:
     x_post: np.ndarray = None
     P_post: np.ndarray = None
     gyro_dot: np.ndarray = None
+    refused: tuple = (0, 0)  # this sample's speed and gravity updates refused, as counted (_tally)
     roll_prop: float = 0.0
     applied: tuple = ()   # measurements applied in the interval ending here (for replays)
     r_scale: float = 1.0  # factor on the accelerometer noise variance (NoiseModel.accel_meas_rate_hz)
@@ -384,11 +385,18 @@ class FusionStream:
         """The measurements of sample ``s`` after the propagation to its time: wheel speed, then
         the gravity reference (which needs the speed for its centripetal term: not before the
         first one)."""
-        if s.speed_fresh:
-            self._speed_update(s.speed)
-        if self._speed_initialized and s.index % self.options.gravity_every == 0:
-            if not self.ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate, s.r_scale):
-                self.counts["gravity_rejected"] += 1
+        speed_refused = self._speed_update(s.speed) if s.speed_fresh else False
+        gravity_refused = (self._speed_initialized and s.index % self.options.gravity_every == 0
+                           and not self.ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate, s.r_scale))
+        self._tally(s, speed_refused, gravity_refused)
+
+    def _tally(self, s: _ImuSample, speed_refused: bool, gravity_refused: bool) -> None:
+        """Count sample ``s``'s refused updates once: a replay (late vision) replaces what its
+        first pass counted instead of adding to it."""
+        new = (int(speed_refused), int(gravity_refused))
+        self.counts["speed_rejected"] += new[0] - s.refused[0]
+        self.counts["gravity_rejected"] += new[1] - s.refused[1]
+        s.refused = new
 
     def _propagate(self, t0: float, t1: float, gyro, imu_index: int, sample: _ImuSample | None = None) -> None:
         """Propagate from ``t0`` to ``t1`` with the mean rate ``gyro``; with ``sample`` (the
@@ -412,26 +420,26 @@ class FusionStream:
                 gravity, sample.r_scale)
             if sample.speed_fresh:
                 self._speed_rejected_in_row = 0 if ok_v else self._speed_rejected_in_row + 1
-                self.counts["speed_rejected"] += not ok_v
-            self.counts["gravity_rejected"] += not ok_g
+            self._tally(sample, sample.speed_fresh and not ok_v, not ok_g)
         self._roll_prop += ekf.x_prior[S.ROLL_W] - roll0
         if self.record:
             self.steps.append(StepRecord(t1, ekf.F.copy(), ekf.x_prior.copy(), ekf.P_prior.copy(),
                                          ekf.x_prior.copy(), ekf.P_prior.copy(), imu_index))
 
-    def _speed_update(self, speed: float) -> None:
-        """Wheel speed; the first one (and one after a run of rejections) sets the state."""
+    def _speed_update(self, speed: float) -> bool:
+        """Wheel speed; the first one (and one after a run of rejections) sets the state.
+        Whether it was refused."""
         ekf, n = self.ekf, self.options.noise
         if not self._speed_initialized or self._speed_rejected_in_row >= self.options.reacquire_after_rejections:
             self._reset(((S.SPEED, speed, n.speed_meas_m_s), (S.ACCEL_X, 0.0, n.init_accel_m_s2)))
             self.counts["speed_reacquired"] += self._speed_initialized
             self._speed_initialized, self._speed_rejected_in_row = True, 0
-            return
+            return False
         if ekf.update_speed(speed):
             self._speed_rejected_in_row = 0
-        else:
-            self.counts["speed_rejected"] += 1
-            self._speed_rejected_in_row += 1
+            return False
+        self._speed_rejected_in_row += 1
+        return True
 
     def _vision_update(self, m: VisionMeasurement | RollAhead, first: bool = True) -> None:
         """Apply a vision result (``first``: not a replay of one applied before) or a deferred roll."""
