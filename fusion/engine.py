@@ -641,9 +641,18 @@ class FusionStream:
         return self._speed_initialized
 
     def estimate(self) -> Estimate:
-        """The latest estimate (after the newest IMU sample); speed NaN before the first wheel speed."""
+        """The latest estimate (after the newest IMU sample). Before the first wheel speed the
+        speed and the gravity-referenced angles (world roll and pitch, grade, bank) are NaN: the
+        gravity reference needs the speed for its centripetal term and waits for it, and
+        without it the filter's sigma of those angles shrinks on weak couplings while they
+        drift (a review fed a drive without its speed message: world roll 36 deg against 14,
+        sigma 1.7). The angles relative to the road rest on the vision and stay."""
         est = estimate_from(self.t_s, self.ekf.x, self.ekf.P, self.t_s - self._last_vision_t, self.ekf.has_pitch_rate)
-        return est if self._speed_initialized else replace(est, speed_m_s=math.nan)
+        if self._speed_initialized:
+            return est
+        nan = math.nan
+        return replace(est, speed_m_s=nan, bank_rad=nan, bank_sigma_rad=nan, roll_world_rad=nan,
+                       roll_world_sigma_rad=nan, pitch_world_rad=nan, pitch_world_sigma_rad=nan, grade_rad=nan)
 
 
 def estimate_from(t_s: float, x: np.ndarray, P: np.ndarray, vision_age_s: float = math.nan,
