@@ -107,6 +107,8 @@ def table(name: str, imu: pd.DataFrame, truth: pd.DataFrame, out: Path | None, a
     print(f"\n{name}: {len(imu)} IMU samples, {duration:.1f} s, accelerometer-bias prior {bias} m/s^2"
           f"{'' if has_pitch_rate else ', no pitch gyro'}; "
           f"errors against its attitude truth after {CONVERGED_S:.0f} s, deg")
+    for w in run.warnings:
+        print(f"warning: {w}")
     print("| angle | fused RMSE | fused mean | fused max | accelerometer tilt RMSE | fused 1-sigma (min-max) | error inside 2 sigma |")
     print("|---|---|---|---|---|---|---|")
     for ang in ("roll", "pitch"):
