@@ -514,20 +514,20 @@ class FusionStream:
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
             # First frame: take yaw, bank and grade from it so that the filter starts consistent.
-            # bank = roll_w - roll and grade = pitch_w - pitch carry the uncertainty of roll_w and
-            # pitch_w (a start without a wheel speed: 25 deg, _init_from_accel) and are
-            # correlated with them; a prior of their own said the bank was known to 5 deg when the
-            # world roll was 40 deg off, and kept the bank from following the world roll's
-            # corrections (one right-hand curve, uncalibrated IMU: bank 0.305 -> 0.227 deg RMS,
-            # tests/test_fusion_calibration.py).
+            # bank = roll_w - roll and grade = pitch_w - pitch, with their covariance by the same
+            # transformation: that of roll_w and pitch_w (a start without a wheel speed: 25 deg,
+            # _init_from_accel) plus the frame's own. A prior of their own said the bank was known
+            # to 5 deg when the world roll was 40 deg off (tests/test_fusion_filter.py::
+            # test_a_start_in_a_hard_corner); where the start is good it changes little (one
+            # right-hand curve, uncalibrated IMU: bank 0.305 -> 0.297 deg RMS).
             ekf.x[S.YAW_REL] = angles[2]
             ekf.x[S.BANK] = ekf.x[S.ROLL_W] - angles[0]
             ekf.x[S.GRADE] = ekf.x[S.PITCH_W] - angles[1]
-            for road, level in ((S.BANK, S.ROLL_W), (S.GRADE, S.PITCH_W)):
-                own = ekf.P[road, road]
+            own = self.options.noise.vision_sigma_rad(np.asarray(m.sigmas_rad[:2], dtype=float))
+            for road, level, sigma in ((S.BANK, S.ROLL_W, own[0]), (S.GRADE, S.PITCH_W, own[1])):
                 ekf.P[road, :] = ekf.P[level, :]
                 ekf.P[:, road] = ekf.P[:, level]
-                ekf.P[road, road] = max(own, ekf.P[level, level])
+                ekf.P[road, road] = ekf.P[level, level] + sigma**2
             if math.isfinite(kappa):
                 ekf.x[S.CURVATURE] = kappa
             self._vision_initialized = True

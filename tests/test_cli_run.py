@@ -542,17 +542,12 @@ def test_no_debug_video_is_left_when_the_frames_end_in_an_error(copy, tmp_path):
     found it renamed to look complete)."""
     import cv2
 
+    from vision.video import FrameSource
+
     folder = copy / "video"
     folder.mkdir()
-    cap = cv2.VideoCapture(str(copy / "video.mp4"))
-    k = 0
-    while True:
-        ok, img = cap.read()
-        if not ok:
-            break
+    for k, img in enumerate(FrameSource(copy / "video.mp4")):
         cv2.imwrite(str(folder / f"{k:06d}.png"), img)
-        k += 1
-    cap.release()
     (copy / "video.mp4").unlink()
     (folder / "000009.png").write_bytes(b"not a picture")
     dbg = tmp_path / "debug.mp4"
