@@ -51,11 +51,12 @@ def find_drive_files(root: str | Path) -> DriveFiles:
     if not root.is_dir():
         raise InputError(f"{root}: no such drive folder")
     videos = [p for p in (root / "video.mp4", root / "video.avi", root / "video") if p.exists()]
-    logs = sorted(p for p in root.glob("can.*") if p.suffix in (".asc", ".blf", ".log", ".trc", ".csv", ".mf4"))
+    kinds = (".asc", ".blf", ".log", ".trc", ".csv", ".mf4")
+    logs = sorted(p for p in root.glob("can.*") if p.suffix in kinds or (p.suffix == ".gz" and Path(p.stem).suffix in kinds))
     if not videos:
         raise InputError(f"{root}: no video.mp4, video.avi or video/ folder")
     if not logs:
-        raise InputError(f"{root}: no can.<asc|blf|log|trc|csv|mf4> log")
+        raise InputError(f"{root}: no can.<asc|blf|log|trc|csv|mf4>[.gz] log")
 
     def opt(name):
         p = root / name

@@ -211,6 +211,8 @@ def iter_messages(path: str | Path, state: ReadState | None = None) -> Iterator[
             f"{path}: unknown log format '{suffix or path.name}' (python-can reads {', '.join(LOG_SUFFIXES)})"
         )
     state.size = path.stat().st_size
+    if state.size == 0:
+        raise DecodeError(f"{path}: the file is empty (0 bytes)")
     if issubclass(cls, TextIOMessageReader):
         yield from _iter_text(path, cls, gz, state)
     else:

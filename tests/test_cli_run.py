@@ -620,3 +620,28 @@ def test_a_reader_that_goes_away_is_no_traceback(drive, tmp_path):
     err = p.stderr.read()
     p.wait(timeout=60)
     assert err.strip() == "", err
+
+
+@pytest.mark.parametrize("case", ["bom", "gz", "empty"])
+def test_inputs_a_review_found_worded_badly(copy, tmp_path, case):
+    """A config saved with a byte-order mark runs (it said 'Invalid statement at line 1'); a
+    drive whose log is gzipped (can.asc.gz) is found, as the log reader reads it (it said 'no
+    can.<...> log'); an empty log says so (an empty BLF said 'unpack requires a buffer of 72
+    bytes')."""
+    import gzip
+
+    log = copy / "can.asc"
+    if case == "bom":
+        cfg = copy / "config.toml"
+        cfg.write_bytes(b"\xef\xbb\xbf" + cfg.read_bytes())
+    elif case == "gz":
+        (copy / "can.asc.gz").write_bytes(gzip.compress(log.read_bytes()))
+        log.unlink()
+    else:
+        log.unlink()
+        (copy / "can.blf").write_bytes(b"")
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--quiet", "--no-report")
+    if case == "empty":
+        one_line_error(r, "can.blf", "empty")
+    else:
+        assert r.returncode == 0, r.stderr

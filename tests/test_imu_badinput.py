@@ -251,7 +251,7 @@ def test_UNKNOWN_UNIT_override():
 @pytest.mark.parametrize("name, content, pattern", [
     ("garbage.blf", bytes(range(256)) * 40, r"not a readable BLF log"),
     ("garbage.mf4", b"MDF     4.10    " + bytes(3000), r"not a readable MF4 log"),
-    ("empty.log", b"", r"no CAN frames in the log"),
+    ("empty.log", b"", r"the file is empty \(0 bytes\)"),
     ("text.asc", b"hello\nworld\n" * 100, r"no CAN frames in the log"),
     ("noise.log", b"(1.0) can0 zzz#\n" * 200, r"not a readable \.log log"),
     ("x.xyz", b"1", r"unknown log format '\.xyz'"),
