@@ -80,6 +80,7 @@ def read_frame_times(frames_csv: Path | None, timing: VideoTiming, n_frames: int
         return pd.DataFrame({"frame": f, "t_s": timing.start_s + f / timing.fps})
     try:
         df = pd.read_csv(frames_csv)
+        df.columns = [str(c).strip() for c in df.columns]     # 'frame, t_s' as written by hand
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
         raise InputError(f"{frames_csv}: not a CSV file ({' '.join(str(e).split())})") from None
     missing = [c for c in ("frame", "t_s") if c not in df.columns]

@@ -15,6 +15,10 @@ import numpy as np
 from .errors import ImuConfigError
 from .units import si_factor
 
+#: The largest IMU position from the vehicle origin taken, m per axis (a truck is 20 m long; a
+#: value in millimetres is not a position).
+MAX_LEVER_ARM_M = 20.0
+
 __all__ = ["CHANNELS", "GYRO", "ACCEL", "ImuMount", "CanMapping"]
 
 GYRO = ("gyro_x", "gyro_y", "gyro_z")
@@ -52,6 +56,9 @@ class ImuMount:
         p = tuple(float(x) for x in self.position_m)
         if len(p) != 3 or not all(math.isfinite(x) for x in p):
             raise ImuConfigError(f"[imu] position_m needs three finite numbers, got {list(p)}")
+        if max(abs(x) for x in p) > MAX_LEVER_ARM_M:
+            raise ImuConfigError(f"[imu] position_m {list(p)}: more than {MAX_LEVER_ARM_M:g} m from the vehicle origin "
+                                 "(the front wheel's contact point): metres expected")
         object.__setattr__(self, "position_m", p)
 
     @property

@@ -645,3 +645,18 @@ def test_inputs_a_review_found_worded_badly(copy, tmp_path, case):
         one_line_error(r, "can.blf", "empty")
     else:
         assert r.returncode == 0, r.stderr
+
+
+def test_a_lever_arm_in_millimetres_and_a_spaced_header(copy, tmp_path):
+    """`[imu] position_m = [0, 0, 500]` (millimetres): a one-line error naming the key (a review
+    found 1e300 accepted, every gravity update then refused); `frame, t_s` as a hand-written
+    frames.csv header reads (it said 'missing t_s')."""
+    frames = copy / "frames.csv"
+    frames.write_text(frames.read_text().replace("frame,t_s", "frame, t_s", 1))
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "ok", "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    cfg = copy / "config.toml"
+    text = cfg.read_text()
+    pos = next(line for line in text.splitlines() if line.startswith("position_m ="))
+    cfg.write_text(text.replace(pos, "position_m = [0.0, 0.0, 500.0]", 1))
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "position_m", "metres")
