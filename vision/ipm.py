@@ -60,7 +60,8 @@ class BevGrid:
     def __post_init__(self) -> None:
         if not (self.x_max_m > self.x_min_m and self.y_max_m > self.y_min_m):
             raise VisionError(f"BEV region is empty: x [{self.x_min_m}, {self.x_max_m}] m, "
-                              f"y [{self.y_min_m}, {self.y_max_m}] m")
+                              f"y [{self.y_min_m}, {self.y_max_m}] m (the config's [vision] x_min_m, x_max_m "
+                              "and the camera's view)")
         if not (self.dx_m > 0 and self.dy_m > 0):
             raise VisionError(f"BEV pixel size must be > 0, got dx={self.dx_m} m, dy={self.dy_m} m")
 
