@@ -85,6 +85,11 @@ class Gap:
     duration_s: float
 
 
+#: Why a mapped frame was not used (:class:`SourceStats` counts each); ``other_channel`` is
+#: expected when ``[can] channel`` picks one bus of a multi-channel log.
+SKIP_KINDS = ("wrong_length", "duplicates", "backwards", "remote", "other_channel", "bad_timestamp", "unaligned")
+
+
 @dataclass(frozen=True)
 class SourceStats:
     """Frame counts of one mapped source (a message, or one multiplexer value of it).
@@ -110,8 +115,7 @@ class SourceStats:
 
     @property
     def skipped(self) -> int:
-        return (self.wrong_length + self.duplicates + self.backwards + self.remote + self.other_channel
-                + self.bad_timestamp + self.unaligned)
+        return sum(getattr(self, k) for k in SKIP_KINDS)
 
 
 @dataclass(frozen=True)

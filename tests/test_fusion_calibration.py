@@ -42,20 +42,18 @@ def test_a_drive_with_curves_both_ways_calibrates_the_imu(campaign):
 
 def test_the_next_drive_starts_from_the_calibration(campaign):
     """A 20 s drive through one right-hand curve banked 7 deg, same IMU: at constant speed its
-    lateral accelerometer bias (0.04 m/s^2, 0.23 deg of bank) cannot be told from bank, so alone
-    its bank RMSE is over 0.25 deg (measured 0.297; 0.305 before the first frame's bank carried
-    the world roll's covariance, 2026-11-26); started from the first drive's calibration it is
-    under 0.25 and at least 10 % better (measured 0.200); roll, pitch and yaw no worse (within
-    0.01 deg). (With the accelerometer noise left at the default, a real car's allowance, before
-    that change: 0.351 and 0.188.)"""
+    lateral accelerometer bias cannot be told from bank, so alone its bank RMSE is over 0.3 deg
+    (measured 0.305); started from the first drive's calibration it is under 0.25 and at most 0.7
+    of that (measured 0.201); roll, pitch and yaw no worse (within 0.01 deg). (With the
+    accelerometer noise left at the default, a real car's allowance: 0.351 and 0.188.)"""
     _, cal = campaign
     drive = synth_drive("banked_curve_right_7deg.toml", accel_bias_m_s2=ACCEL_BIAS_IMU)
     runs = {label: fuse(drive.imu, drive.vision, lever_arm_m=drive.lever_arm_m,
                         options=fusion_options_from_table(table)[0]).fused
             for label, table in (("alone", DATASHEET), ("calibrated", {**DATASHEET, **cal}))}
     alone, calibrated = (rmse_deg(runs[k], drive.truth, "bank_deg") for k in ("alone", "calibrated"))
-    assert alone > 0.25, alone
-    assert calibrated < 0.25 and calibrated < 0.9 * alone, (calibrated, alone)
+    assert alone > 0.3, alone
+    assert calibrated < 0.25 and calibrated < 0.7 * alone, (calibrated, alone)
     for col in ("roll_deg", "pitch_deg", "yaw_deg"):
         assert rmse_deg(runs["calibrated"], drive.truth, col) < rmse_deg(runs["alone"], drive.truth, col) + 0.01, col
 

@@ -260,12 +260,15 @@ def _can_problems(summary, log) -> list[str]:
     """Warnings for the mapped frames the decoder did not use and the lines it could not read
     (``vifusion can`` lists them per message): the samples they belonged to are missing or
     incomplete."""
-    kinds = ("wrong_length", "duplicates", "backwards", "remote", "other_channel", "bad_timestamp", "unaligned")
+    from imu.samples import SKIP_KINDS
+
+    kinds = [k for k in SKIP_KINDS if k != "other_channel"]   # the channel the config picked: expected
     out = []
     for s in summary.sources:
-        skipped = ", ".join(f"{k.replace('_', ' ')} {getattr(s, k)}" for k in kinds if getattr(s, k))
-        if skipped:
-            out.append(f"{log}: {s.name} ({s.frame_id}): {s.skipped} frames not used ({skipped}; "
+        counts = {k: getattr(s, k) for k in kinds if getattr(s, k)}
+        if counts:
+            listed = ", ".join(f"{k.replace('_', ' ')} {n}" for k, n in counts.items())
+            out.append(f"{log}: {s.name} ({s.frame_id}): {sum(counts.values())} frames not used ({listed}; "
                        "vifusion can lists them)")
     if summary.bad_lines:
         out.append(f"{log}: {summary.bad_lines} unreadable lines skipped")
