@@ -97,12 +97,16 @@ class FrameSource:
 
 
 def _by_number(files: list[Path]) -> list[Path | None]:
-    """Pictures in name order, or, when every name is a number (``000123.png``), at their
-    number less the first's: a picture missing from a numbered sequence is then a missing frame,
-    not a shift of every later frame onto the time of the one before it."""
+    """Pictures in name order, or, when every name is a frame number (``000123.png``: numbers
+    that skip at most as many values as there are pictures), at their number less the first's:
+    a picture missing from a numbered sequence is then a missing frame, not a shift of every
+    later frame onto the time of the one before it. Names that are times (nanoseconds, as some
+    datasets write them) stay in name order."""
     if not all(p.stem.isdigit() for p in files) or len({int(p.stem) for p in files}) < len(files):
         return files
     numbers = [int(p.stem) for p in files]
+    if max(numbers) - min(numbers) + 1 > 2 * len(files):
+        return files
     first = min(numbers)
     out: list[Path | None] = [None] * (max(numbers) - first + 1)
     for p, n in zip(files, numbers):
