@@ -216,6 +216,12 @@ class FusionStream:
             # propagates across) that is fine; older ones are dropped as too old (up to history_s
             # = 1 s before, a second-old roll was applied as the current one)
             self._drop_pending(lambda p: p.t_s < t - min(self.options.max_imu_gap_s, self.options.history_s))
+            # and those too far ahead of it (a bad stamp handed in before the IMU started)
+            lead = max(self.options.history_s, _MAX_VISION_LEAD_S)
+            future = [p for p in self._pending if isinstance(p, VisionMeasurement) and p.t_s > t + lead]
+            if future:
+                self.counts["vision_future"] += len(future)
+                self._pending = [p for p in self._pending if not (isinstance(p, VisionMeasurement) and p.t_s > t + lead)]
         # Vision results whose time this sample passes are applied inside the interval
         # (the queue is kept in time order: the first k).
         k = bisect.bisect_right(self._pending, t, key=_time_of)
@@ -315,7 +321,8 @@ class FusionStream:
         """Roll and pitch relative to level from the first sample's specific force, the
         centripetal terms taken out: in a steady turn ``f_y = g sin(roll) + v r`` and ``f_z =
         g cos(roll) - v q`` (module docstring of :mod:`fusion.ekf`). Without a wheel speed yet
-        the turn cannot be taken out (a lean of 40 deg reads as about 20): the roll's sigma is
+        the turn cannot be taken out (in a coordinated turn ``f_y`` is about 0: a lean of 40 deg
+        reads as about 0): the roll's sigma is
         then :data:`_ROLL_SIGMA_WITHOUT_SPEED_RAD` until the gravity updates, which wait for the
         speed, bring it in."""
         ekf = self.ekf
@@ -513,21 +520,21 @@ class FusionStream:
                                     key=_time_of)
         self._lane_fit = (offset if math.isfinite(offset) else 0.0, t)
         if not self._vision_initialized:
-            # First frame: take yaw, bank and grade from it so that the filter starts consistent.
-            # bank = roll_w - roll and grade = pitch_w - pitch, with their covariance by the same
-            # transformation: that of roll_w and pitch_w (a start without a wheel speed: 25 deg,
-            # _init_from_accel) plus the frame's own. A prior of their own said the bank was known
-            # to 5 deg when the world roll was 40 deg off (tests/test_fusion_filter.py::
-            # test_a_start_in_a_hard_corner); where the start is good it changes little (one
-            # right-hand curve, uncalibrated IMU: bank 0.305 -> 0.297 deg RMS).
+            # First frame: take yaw, bank and grade from it so that the filter starts consistent:
+            # bank = roll_w - roll and grade = pitch_w - pitch, correlated with roll_w and pitch_w
+            # as that makes them (a start without a wheel speed: 25 deg, _init_from_accel), the
+            # angles relative to the road with the bank's and grade's prior variance; the update
+            # below then takes the frame once. A prior of their own said the bank was known to
+            # 5 deg when the world roll was 40 deg off (tests/test_fusion_filter.py::
+            # test_a_start_in_a_hard_corner).
             ekf.x[S.YAW_REL] = angles[2]
             ekf.x[S.BANK] = ekf.x[S.ROLL_W] - angles[0]
             ekf.x[S.GRADE] = ekf.x[S.PITCH_W] - angles[1]
-            own = self.options.noise.vision_sigma_rad(np.asarray(m.sigmas_rad[:2], dtype=float))
-            for road, level, sigma in ((S.BANK, S.ROLL_W, own[0]), (S.GRADE, S.PITCH_W, own[1])):
+            n = self.options.noise
+            for road, level, prior in ((S.BANK, S.ROLL_W, n.init_bank_rad), (S.GRADE, S.PITCH_W, n.init_grade_rad)):
                 ekf.P[road, :] = ekf.P[level, :]
                 ekf.P[:, road] = ekf.P[:, level]
-                ekf.P[road, road] = ekf.P[level, level] + sigma**2
+                ekf.P[road, road] = ekf.P[level, level] + prior**2
             if math.isfinite(kappa):
                 ekf.x[S.CURVATURE] = kappa
             self._vision_initialized = True

@@ -99,6 +99,9 @@ class LiveFusion:
                 # an incomplete sample (a value missing) is skipped and counted by the stream;
                 # its wheel speed still dates the frames
                 n += self.stream.add_imu(s.t_s, gyro, accel, s.speed_m_s, s.fresh_speed)
+                if math.isfinite(self._last_frame[0]) and self.stream.too_far_ahead(self._last_frame[0]):
+                    # a frame stamped far ahead before the bus had a time: not the last frame
+                    self._last_frame = (math.nan, math.nan)
                 if s.fresh_speed and math.isfinite(s.speed_m_s):
                     self._speeds.append((s.t_s, s.speed_m_s))
             self.samples += n

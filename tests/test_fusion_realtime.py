@@ -327,6 +327,16 @@ def test_a_frame_stamped_far_ahead_or_not_at_all_is_refused_alone(sample_offline
     live, e, bank_err = _live_run(sample_offline, lambda n, t: [float("nan"), t] if n in (1, 30) else [t])
     assert live.counts["frames_bad_time"] == 2
     assert np.isfinite([e.roll_rad, e.bank_rad, e.roll_sigma_rad]).all() and abs(bank_err) < 0.5, bank_err
+    # the same stamp handed in before the bus has a time (the camera started first): refused when
+    # the first IMU sample comes, and the frames after it go on (a review: 358 skipped)
+    cfg, messages, frames, _, _ = sample_offline
+    live = LiveFusion(cfg)
+    live.push_frame(frames[0][0] + 100.0, frames[0][1])
+    for m in messages[:200]:
+        live.push_can(m)
+    for t, img in frames[:3]:
+        live.push_frame(t, img)
+    assert live.counts["frames_out_of_order"] == 0 and live.stream.counts["vision_future"] == 1
 
 
 def test_vision_results_wait_bounded_for_a_silent_imu(sample_offline):
