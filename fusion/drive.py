@@ -132,11 +132,12 @@ def read_truth(path: Path | None, columns: tuple[str, ...] = TRUTH_COLUMNS) -> p
     if len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         raise InputError(f"{path}: t_s must hold two or more finite, increasing times")
     for c in have:
-        v = df[c].to_numpy(dtype=float)
-        if np.any(np.isinf(v)) or not np.any(np.isfinite(v)):
-            raise InputError(f"{path}: truth column {c} " + ("holds infinite values" if np.any(np.isinf(v))
-                                                           else "has no value"))
-    return df
+        if np.any(np.isinf(df[c].to_numpy(dtype=float))):
+            raise InputError(f"{path}: truth column {c} holds infinite values")
+    empty = [c for c in have if not df[c].notna().any()]   # a reference without that angle: not scored
+    if have and len(empty) == len(have):
+        raise InputError(f"{path}: no truth column has a value ({', '.join(have)} are empty)")
+    return df.drop(columns=empty)
 
 
 def _common_span(a_t: np.ndarray, b_t: np.ndarray) -> tuple[float, float] | None:
