@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from imu.log_source import log_suffix
+
 from .config import VideoTiming
 from .errors import InputError
 
@@ -52,7 +54,7 @@ def find_drive_files(root: str | Path) -> DriveFiles:
         raise InputError(f"{root}: no such drive folder")
     videos = [p for p in (root / "video.mp4", root / "video.avi", root / "video") if p.exists()]
     kinds = (".asc", ".blf", ".log", ".trc", ".csv", ".mf4")
-    logs = sorted(p for p in root.glob("can.*") if p.suffix in kinds or (p.suffix == ".gz" and Path(p.stem).suffix in kinds))
+    logs = sorted(p for p in root.glob("can.*") if log_suffix(p)[0] in kinds)
     if not videos:
         raise InputError(f"{root}: no video.mp4, video.avi or video/ folder")
     if not logs:

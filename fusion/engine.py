@@ -216,12 +216,9 @@ class FusionStream:
             # propagates across) that is fine; older ones are dropped as too old (up to history_s
             # = 1 s before, a second-old roll was applied as the current one)
             self._drop_pending(lambda p: p.t_s < t - min(self.options.max_imu_gap_s, self.options.history_s))
-            # and those too far ahead of it (a bad stamp handed in before the IMU started)
-            lead = max(self.options.history_s, _MAX_VISION_LEAD_S)
-            future = [p for p in self._pending if isinstance(p, VisionMeasurement) and p.t_s > t + lead]
-            if future:
-                self.counts["vision_future"] += len(future)
-                self._pending = [p for p in self._pending if not (isinstance(p, VisionMeasurement) and p.t_s > t + lead)]
+            # and the results too far ahead of it (a bad stamp handed in before the IMU started)
+            self._drop_pending(lambda p: isinstance(p, VisionMeasurement) and self.too_far_ahead(p.t_s, t),
+                               "vision_future")
         # Vision results whose time this sample passes are applied inside the interval
         # (the queue is kept in time order: the first k).
         k = bisect.bisect_right(self._pending, t, key=_time_of)
@@ -256,16 +253,14 @@ class FusionStream:
         if not math.isfinite(t_s):
             self.counts["vision_invalid"] += 1   # a NaN time would be applied at every sample
             return
-        newest = self._hist[-1].t if self._hist else math.nan
         if self.too_far_ahead(t_s):
             self.counts["vision_future"] += 1
             return
-        if not self._hist and self._pending and t_s > self._pending[-1].t_s:
-            # no IMU sample yet (the camera started first, or the IMU is silent): keep only the
-            # history's span of results, not every one until the IMU comes
+        # the newest IMU sample's time; none yet (the camera started first, or the IMU is
+        # silent): this result's, so that only the history's span of results waits for the IMU
+        newest = self._hist[-1].t if self._hist else t_s
+        if not self._hist:
             self._drop_pending(lambda p: p.t_s < t_s - self.options.history_s)
-            while self._vision_times and self._vision_times[0] < t_s - self.options.history_s:
-                self._vision_times.popleft()
         while self._vision_times and self._vision_times[0] < newest - self.options.history_s:
             self._vision_times.popleft()
         if t_s in self._vision_times:
@@ -282,10 +277,15 @@ class FusionStream:
             self.counts["vision_late"] += 1
             self._apply_late(item)
 
-    def too_far_ahead(self, t_s: float) -> bool:
+    def too_far_ahead(self, t_s: float, newest_s: float | None = None) -> bool:
         """Whether a vision result captured at ``t_s`` is too far ahead of the newest IMU sample
-        to be kept (a clock mix-up): it would wait in the queue for good."""
-        return bool(self._hist) and t_s > self._hist[-1].t + max(self.options.history_s, _MAX_VISION_LEAD_S)
+        (``newest_s``, default the stream's; none yet: never) to be kept (a clock mix-up): it
+        would wait in the queue for good."""
+        if newest_s is None:
+            if not self._hist:
+                return False
+            newest_s = self._hist[-1].t
+        return t_s > newest_s + max(self.options.history_s, _MAX_VISION_LEAD_S)
 
     def restart(self, clock_reset: bool = False) -> None:
         """Start again from the next IMU sample, keeping what is known of the IMU: its biases
@@ -309,10 +309,10 @@ class FusionStream:
             self._vision_times.clear()
         self._restore(self._initial_state)
 
-    def _drop_pending(self, stale) -> None:
+    def _drop_pending(self, stale, count: str = "vision_too_old") -> None:
         """Take the queued items for which ``stale(item)`` holds out of the queue; the vision
-        results among them count as too old."""
-        self.counts["vision_too_old"] += sum(isinstance(p, VisionMeasurement) and stale(p) for p in self._pending)
+        results among them are counted in ``counts[count]``."""
+        self.counts[count] += sum(isinstance(p, VisionMeasurement) and stale(p) for p in self._pending)
         self._pending = [p for p in self._pending if not stale(p)]
 
     # ---- core ----
@@ -322,9 +322,8 @@ class FusionStream:
         centripetal terms taken out: in a steady turn ``f_y = g sin(roll) + v r`` and ``f_z =
         g cos(roll) - v q`` (module docstring of :mod:`fusion.ekf`). Without a wheel speed yet
         the turn cannot be taken out (in a coordinated turn ``f_y`` is about 0: a lean of 40 deg
-        reads as about 0): the roll's sigma is
-        then :data:`_ROLL_SIGMA_WITHOUT_SPEED_RAD` until the gravity updates, which wait for the
-        speed, bring it in."""
+        reads as about 0): the roll's sigma is then :data:`_ROLL_SIGMA_WITHOUT_SPEED_RAD` until
+        the gravity updates, which wait for the speed, bring it in."""
         ekf = self.ekf
         known = math.isfinite(s.speed)
         v = s.speed if known else 0.0  # the first wheel speed sets the state properly

@@ -179,7 +179,8 @@ def _quiet_unraisable() -> Iterator[None]:
         sys.unraisablehook = saved
 
 
-def _suffix(path: Path) -> tuple[str, bool]:
+def log_suffix(path: Path) -> tuple[str, bool]:
+    """A log file's format suffix (lower case) and whether it is gzipped (``can.asc.gz``)."""
     suffixes = [s.lower() for s in path.suffixes]
     if suffixes and suffixes[-1] == ".gz" and len(suffixes) >= 2:
         return suffixes[-2], True
@@ -199,7 +200,7 @@ def iter_messages(path: str | Path, state: ReadState | None = None) -> Iterator[
         are mostly unreadable.
     """
     path = Path(path)
-    suffix, gz = _suffix(path)
+    suffix, gz = log_suffix(path)
     state = state if state is not None else ReadState(path, suffix)
     if not path.exists():
         raise DecodeError(f"{path}: no such log file")
@@ -444,7 +445,7 @@ def read_log(path: str | Path, mapping: CanMapping, mount: ImuMount, *, progress
     """
     path = Path(path)
     plan = resolve(mapping, db)
-    state = ReadState(path, _suffix(path)[0])
+    state = ReadState(path, log_suffix(path)[0])
     width = max(dlc2len(len2dlc(s.length)) for s in plan.sources)
     bar = _progress_bar(path, state) if progress else None
     gc_was_enabled = gc.isenabled()
@@ -501,7 +502,7 @@ def _read_mapped(path: Path, plan: DecodePlan, width: int, state: ReadState, bar
 def _progress_bar(path: Path, state: ReadState) -> Any:
     from tqdm import tqdm
 
-    suffix, gz = _suffix(path)
+    suffix, gz = log_suffix(path)
     by_bytes = path.is_file() and not gz and suffix != ".mf4"
     total = path.stat().st_size if by_bytes else None
     return tqdm(total=total, unit="B" if by_bytes else " frames", unit_scale=True, desc=path.name,

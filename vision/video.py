@@ -102,13 +102,13 @@ def _by_number(files: list[Path]) -> list[Path | None]:
     a picture missing from a numbered sequence is then a missing frame, not a shift of every
     later frame onto the time of the one before it. Names that are times (nanoseconds, as some
     datasets write them) stay in name order."""
-    if not all(p.stem.isdigit() for p in files) or len({int(p.stem) for p in files}) < len(files):
+    if not all(p.stem.isdigit() for p in files):
         return files
     numbers = [int(p.stem) for p in files]
-    if max(numbers) - min(numbers) + 1 > 2 * len(files):
+    first, span = min(numbers), max(numbers) - min(numbers) + 1
+    if len(set(numbers)) < len(files) or span > 2 * len(files):
         return files
-    first = min(numbers)
-    out: list[Path | None] = [None] * (max(numbers) - first + 1)
+    out: list[Path | None] = [None] * span
     for p, n in zip(files, numbers):
         out[n - first] = p
     return out
