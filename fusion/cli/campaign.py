@@ -49,19 +49,16 @@ def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
     from ..calibration import read_calibration
+    from ..errors import InputError
     from . import USER_ERRORS, _one_line
     from . import run as run_cmd
 
     names = [Path(os.path.abspath(d)).name for d in args.drives]      # '.' names its folder; links keep theirs
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        from ..errors import InputError
-
         raise InputError(f"two drives named {dup[0]}: their outputs would share {args.out / dup[0]}")
     clash = [n for n in names if n in ("campaign.csv", "campaign.parquet")]
     if clash:   # said now, not after every drive
-        from ..errors import InputError
-
         raise InputError(f"a drive named {clash[0]}: its output folder would be the campaign's table")
     args.out.mkdir(parents=True, exist_ok=True)
     calibration = args.calibration

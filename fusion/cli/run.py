@@ -171,15 +171,14 @@ def _run(args: argparse.Namespace) -> int:
         warnings.append(f"CAN gaps: {len(gaps) - 5} more")
 
     frames = read_frame_times(files.frames, cfg.video, None if files.frames else _count_frames(files.video))
-    check_overlap(frames["t_s"].to_numpy() + offset_s, imu["t_s"].to_numpy(),
-                  str(files.frames or files.video), str(files.can_log))
-    outside = frames_outside_warning(frames["t_s"].to_numpy() + offset_s, imu["t_s"].to_numpy(),
-                                     str(files.frames or files.video))
+    frame_t, imu_t, frames_name = frames["t_s"].to_numpy() + offset_s, imu["t_s"].to_numpy(), str(files.frames or files.video)
+    check_overlap(frame_t, imu_t, frames_name, str(files.can_log))
+    outside = frames_outside_warning(frame_t, imu_t, frames_name)
     if outside:
         warnings.append(outside)
 
     # the wheel speed at each frame: the estimator carries the road's twist by the distance travelled
-    frames = frames.assign(speed_m_s=frame_speeds(imu, frames["t_s"].to_numpy() + offset_s))
+    frames = frames.assign(speed_m_s=frame_speeds(imu, frame_t))
 
     imu_only_box: dict = {}
 
