@@ -200,7 +200,9 @@ def _run(args: argparse.Namespace) -> int:
         why = f" (mostly: {reasons.index[0]})" if reasons is not None and len(reasons) else ""
         warnings.append(f"vision valid on {n_valid} of {len(vision)} frames{why}: the fused angles relative to "
                         "the road rest on the IMU and the last bank estimate elsewhere")
+    t0 = time.perf_counter()
     _write_csv(vision, tmp / "vision.csv")
+    timings["outputs"] = time.perf_counter() - t0   # the tables grow with the drive: not a fixed cost
 
     time_offset = None
     if args.estimate_time_offset or settings.estimate_time_offset:
@@ -229,6 +231,7 @@ def _run(args: argparse.Namespace) -> int:
                                                 frame_gap_limit_s(vision["t_s"].to_numpy()))
     timings["fusion"] = time.perf_counter() - t0
     warnings += fused.warnings
+    t0 = time.perf_counter()
     _write_csv(table, tmp / "fused.csv")
     calibration = None
     try:
@@ -237,6 +240,7 @@ def _run(args: argparse.Namespace) -> int:
                           f"{files.can_log} ({'smoothed' if smooth else 'forward filter'})")
     except ValueError as e:   # a filter that ended without finite biases: nothing to carry on
         warnings.append(f"no calibration.toml written: {e}")
+    timings["outputs"] += time.perf_counter() - t0
 
     # summary.json always (warnings, counts, the time offset, accuracy): --no-report skips the plots
     t0 = time.perf_counter()
@@ -342,7 +346,8 @@ def _print_summary(out, files, frames, imu, timings, warnings, summary, time_off
     print(f"time: total {total_s:.1f} s for a {drive_s:.1f} s drive; fixed costs {fixed:.1f} s "
           f"(start-up {timings.get('start-up', 0):.1f}, report {timings.get('report', 0):.1f}); "
           f"the rest {per_drive:.1f} s = {100 * per_drive / drive_s:.1f} % of the drive's duration "
-          f"(vision {timings.get('vision', 0):.1f}, CAN {timings.get('CAN decode', 0):.1f}, fusion {timings.get('fusion', 0):.1f})")
+          f"(vision {timings.get('vision', 0):.1f}, CAN {timings.get('CAN decode', 0):.1f}, fusion {timings.get('fusion', 0):.1f}, "
+          f"outputs {timings.get('outputs', 0):.1f})")
     if time_offset:
         print(f"camera time offset: {_offset_line(time_offset)}")
     if summary and summary.get("rmse_deg"):
