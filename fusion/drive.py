@@ -123,6 +123,8 @@ def read_truth(path: Path | None, columns: tuple[str, ...] = TRUTH_COLUMNS) -> p
         df = pd.read_csv(path)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: not a CSV file ({' '.join(str(e).split())})") from None
+    if len(df) < 2:   # a header alone reads as text columns: say what is missing
+        raise InputError(f"{path}: {len(df)} data row{'' if len(df) == 1 else 's'}; a truth table needs two or more")
     have = [c for c in columns[1:] if c in df.columns]
     if "t_s" not in df.columns or (len(columns) > 1 and not have):
         need = "no t_s column" if "t_s" not in df.columns else f"none of the columns {', '.join(columns[1:])}"

@@ -589,7 +589,7 @@ def test_frames_mostly_outside_the_can_log_are_a_warning(copy, tmp_path):
 def test_a_truth_column_without_values_is_not_scored_and_inf_is_an_error(copy, tmp_path):
     """A truth column all NaN (a reference without that angle) is not scored, as a missing
     column is not: no 'bank nan' and no numpy warnings (a review found both). One holding inf
-    is a one-line error naming it."""
+    is a one-line error naming it, and so is a file of the header alone."""
     truth = pd.read_csv(copy / "truth.csv")
     truth["bank_deg"] = float("nan")
     truth.to_csv(copy / "truth.csv", index=False)
@@ -598,11 +598,13 @@ def test_a_truth_column_without_values_is_not_scored_and_inf_is_an_error(copy, t
     truth["bank_deg"] = float("inf")
     truth.to_csv(copy / "truth.csv", index=False)
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out2"), "truth.csv", "bank_deg holds infinite")
+    truth.head(0).to_csv(copy / "truth.csv", index=False)   # the header alone (it said 'not numeric')
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out3"), "truth.csv: 0 data rows")
 
 
 def test_outputs_that_cannot_be_written_are_refused_before_the_work(drive, tmp_path):
-    """`vifusion vision --out X.csv` where X.csv is a folder, and a campaign drive named
-    campaign.csv: refused at once. A review found both found out after every frame or drive,
+    """`vifusion vision --out X.csv` where X.csv is a folder, a campaign drive named
+    campaign.csv, and a campaign's --out inside one of its drives: refused at once. A review found both found out after every frame or drive,
     leaving X.csv.partial behind."""
     (tmp_path / "x.csv").mkdir()
     r = vifusion("vision", "--video", drive / "video.mp4", "--config", drive / "config.toml", "--out", tmp_path / "x.csv")
@@ -611,6 +613,9 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_work(drive, tmp_p
     named = tmp_path / "campaign.csv"
     shutil.copytree(drive, named)
     one_line_error(vifusion("campaign", named, "--out", tmp_path / "c"), "campaign's table")
+    # the campaign's folder inside a drive's (its outputs would mix with the drive's files)
+    one_line_error(vifusion("campaign", drive, "--out", drive / "campaign"), "inside the drive")
+    assert not (drive / "campaign").exists()
 
 
 def test_a_reader_that_goes_away_is_no_traceback(drive, tmp_path):

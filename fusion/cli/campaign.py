@@ -60,6 +60,10 @@ def run(args: argparse.Namespace) -> int:
     clash = [n for n in names if n in ("campaign.csv", "campaign.parquet")]
     if clash:   # said now, not after every drive
         raise InputError(f"a drive named {clash[0]}: its output folder would be the campaign's table")
+    out_dir = args.out.resolve()
+    inside = [d for d in args.drives if out_dir == Path(d).resolve() or Path(d).resolve() in out_dir.parents]
+    if inside:   # the campaign's folders and tables would be mixed into a drive's own files
+        raise InputError(f"--out {args.out} is inside the drive {inside[0]}: give the campaign a folder of its own")
     args.out.mkdir(parents=True, exist_ok=True)
     calibration = args.calibration
     rows = []
