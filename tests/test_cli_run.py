@@ -669,3 +669,36 @@ def test_a_lever_arm_in_millimetres_and_a_spaced_header(copy, tmp_path):
     pos = next(line for line in text.splitlines() if line.startswith("position_m ="))
     cfg.write_text(text.replace(pos, "position_m = [0.0, 0.0, 500.0]", 1))
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "position_m", "metres")
+
+
+def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch, capsys):
+    """Ctrl-C inside numba's compiler comes out as RuntimeError ("no compiled object yet"), in a
+    vision worker as SystemError: a review got those tracebacks on 2 of 21 interrupts. Any
+    error after this process got SIGINT is the interrupt (exit 130, one line); the same error
+    without an interrupt is still a bug's traceback. A real SIGINT, sent to this process."""
+    import os
+    import signal
+    import time
+
+    import fusion.cli.run as run_cmd
+    from fusion.cli import main
+
+    def compiler_interrupted(args):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5.0)          # the handler raises here
+        except KeyboardInterrupt:
+            raise RuntimeError("no compiled object yet for <Library '_propagate_cov'>") from None
+        pytest.fail("no SIGINT arrived")
+
+    monkeypatch.setattr(run_cmd, "run", compiler_interrupted)
+    assert main(["run"]) == 130
+    assert capsys.readouterr().err == "error: interrupted\n"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler   # put back
+
+    def a_bug(args):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(run_cmd, "run", a_bug)
+    with pytest.raises(RuntimeError, match="a bug"):
+        main(["run"])

@@ -11,7 +11,9 @@ import argparse
 import errno
 import importlib
 import os
+import signal
 import sys
+import threading
 import time
 
 
@@ -82,20 +84,60 @@ def main(argv: list[str] | None = None) -> int:
         # FFmpeg inside OpenCV prints its own line for a video it cannot open ("moov atom not
         # found") before the one-line error this program gives for it
         os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    interrupted = _InterruptWatch(quiet=not args.debug)
     try:
         return int(args.func(args) or 0)
     except BrokenPipeError:
         # the reader of the output went away ('vifusion can LOG ... | head'): no more to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
-    except USER_ERRORS as e:
-        if args.debug:
-            raise
-        print(f"error: {_one_line(e)}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:
+        if interrupted.seen and not args.debug:
+            # Ctrl-C that surfaced as another error: numba's compiler turns it into "no compiled
+            # object yet", a pool worker's into SystemError (2 of 21 interrupts in a review)
+            print("error: interrupted", file=sys.stderr)
+            return 130
+        if not isinstance(e, USER_ERRORS) or args.debug:
+            raise
+        print(f"error: {_one_line(e)}", file=sys.stderr)
+        return 2
+    finally:
+        interrupted.close()
+
+
+class _InterruptWatch:
+    """Records whether this process got SIGINT (and raises KeyboardInterrupt as Python's own
+    handler does), for as long as the command runs; only where Python's handler is in place,
+    in the main thread. With ``quiet``, what the interrupt leaves behind in callbacks and
+    finalizers (numba's LLVM bindings: "Exception ignored ...", three tracebacks at once) is
+    not printed after it: the command ends with its one line."""
+
+    def __init__(self, quiet: bool = True):
+        self.seen = False
+        self._quiet = quiet
+        self._before = signal.getsignal(signal.SIGINT)
+        self._hook = sys.unraisablehook
+        self._active = threading.current_thread() is threading.main_thread() and self._before is signal.default_int_handler
+        if self._active:
+            signal.signal(signal.SIGINT, self._on_interrupt)
+
+    def _on_interrupt(self, signum, frame):
+        self.seen = True
+        if self._quiet:
+            sys.unraisablehook = _ignore
+        raise KeyboardInterrupt
+
+    def close(self) -> None:
+        if self._active:
+            signal.signal(signal.SIGINT, self._before)
+            sys.unraisablehook = self._hook
+
+
+def _ignore(unraisable) -> None:
+    pass
 
 
 def workers_arg(text: str) -> int:
