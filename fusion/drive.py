@@ -185,3 +185,34 @@ def frames_outside_warning(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: 
         return None
     return (f"{before + after} of {len(frame_t)} frames fall outside the CAN log's IMU samples ({before} before, "
             f"{after} after) and are not used: are {frames_name}'s times in seconds on the CAN log's clock?")
+
+
+def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str) -> str | None:
+    """A warning when the video holds more than a second of frames after the last one that
+    ``frames`` lists (a frames.csv cut short: the frames after it are not processed), or None.
+    The video's length is its container's frame count (a folder's pictures), read without
+    decoding; a container without one is not checked."""
+    if not len(frames):
+        return None
+    import av
+
+    from vision.errors import VisionError
+    from vision.video import FrameSource
+
+    try:
+        src = FrameSource(video)
+        if src.files is not None:
+            n_video = len(src.files)
+        else:
+            with av.open(str(video)) as container:
+                n_video = int(container.streams.video[0].frames)
+    except (VisionError, av.FFmpegError, OSError, IndexError):   # the vision's own reading says what is wrong
+        return None
+    t = frames["t_s"].to_numpy(dtype=float)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    last = int(frames["frame"].iloc[-1])
+    extra = n_video - 1 - last
+    if dt <= 0.0 or extra * dt <= 1.0:
+        return None
+    return (f"{video} holds {n_video} frames; {frames_name} lists up to frame {last}: the last {extra} "
+            f"({extra * dt:.1f} s) are not processed")

@@ -234,6 +234,24 @@ def test_video_shorter_than_frames_csv_is_a_warning(copy, tmp_path):
     assert any("10 of the" in w for w in summary["warnings"])
 
 
+def test_video_longer_than_frames_csv_is_a_warning(copy, tmp_path):
+    """A frames.csv cut short (the last 20 of 30 frames, 1.3 s, not listed): the run goes on
+    with the frames listed and says how many of the video's it leaves out (it said nothing,
+    and the fused table simply ended early). The run of the whole list says nothing of it."""
+    frames = pd.read_csv(copy / "frames.csv")
+    frames.head(10).to_csv(copy / "frames.csv", index=False, float_format="%.6f")
+    out = tmp_path / "out"
+    r = vifusion("run", "--drive", copy, "--out", out, "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((out / "report" / "summary.json").read_text())
+    assert any("holds 30 frames" in w and "up to frame 9: the last 20 (1.3 s) are not processed" in w
+               for w in summary["warnings"]), summary["warnings"]
+    frames.to_csv(copy / "frames.csv", index=False, float_format="%.6f")
+    r = vifusion("run", "--drive", copy, "--out", out, "--quiet", "--no-report")
+    summary = json.loads((out / "report" / "summary.json").read_text())
+    assert r.returncode == 0 and not any("not processed" in w for w in summary["warnings"]), summary["warnings"]
+
+
 @pytest.mark.parametrize("column, words", [("t_s", "t_s does not increase"), ("frame", "frame numbers must increase")])
 def test_frames_csv_not_increasing(copy, tmp_path, column, words):
     """A time going back, or a frame listed twice."""
