@@ -51,6 +51,10 @@ from .pipeline import last_speed
 
 __all__ = ["LiveFusion"]
 
+#: Frames in a row stamped at or before the last one taken after which ``LiveFusion.warnings``
+#: says the camera's clock may have stepped back (a second at 30 fps; one repeated frame is not).
+CLOCK_BACK_WARN_FRAMES = 30
+
 
 class LiveFusion:
     """CAN messages and frames in, :class:`fusion.engine.Estimate` out; see the module docstring."""
@@ -80,6 +84,7 @@ class LiveFusion:
         self._speeds: deque = deque(maxlen=256)    # recent fresh wheel speeds: (t_s, m/s)
         self._last_frame = (math.nan, math.nan)    # the last frame: (t_s, speed then)
         self._last_estimate: VisionEstimate | None = None
+        self._behind_in_row = 0                    # frames in a row not after the last one taken
 
     def push_can(self, msg, received_s: float | None = None) -> int:
         """One CAN message (python-can ``Message``); returns how many IMU samples it released
@@ -125,7 +130,14 @@ class LiveFusion:
                 return self._last_estimate
             if not t_cap > t0 and math.isfinite(t0):
                 self.counts["frames_out_of_order"] += 1
+                self._behind_in_row += 1
+                if self._behind_in_row == CLOCK_BACK_WARN_FRAMES:
+                    self.warnings.append(
+                        f"{CLOCK_BACK_WARN_FRAMES} frames in a row stamped at or before the last one taken "
+                        f"({t0:.3f} s; this one {t_cap:.3f} s): has the camera's clock stepped back? Frames are "
+                        "refused until their stamps pass it (counts['frames_out_of_order'])")
                 return self._last_estimate
+            self._behind_in_row = 0
             if self.stream.too_far_ahead(t_cap):
                 # a bad stamp, a camera clock that stepped: refused before the estimator, whose
                 # road map would move by the stamp's travel, and not the last frame's time

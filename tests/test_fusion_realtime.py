@@ -339,6 +339,20 @@ def test_a_frame_stamped_far_ahead_or_not_at_all_is_refused_alone(sample_offline
     assert live.counts["frames_out_of_order"] == 0 and live.stream.counts["vision_future"] == 1
 
 
+def test_a_camera_clock_that_steps_back_is_said(sample_offline):
+    """From frame 100 on the camera's stamps are 20 s behind (its clock stepped back): every
+    frame after it is refused as out of order (their stamps never pass the last one taken
+    within the drive) and the filter runs on the IMU; LiveFusion now says so once, after 30
+    such frames, in ``warnings`` (it only counted them). A lone repeated frame says nothing."""
+    live, _, _ = _live_run(sample_offline, lambda n, t: [t - 20.0] if n >= 100 else [t])
+    n_frames = len(sample_offline[2])
+    assert live.counts["frames_out_of_order"] >= n_frames - 100 - 3   # the last few not yet handed in
+    said = [w for w in live.warnings if "stepped back" in w]
+    assert len(said) == 1 and "30 frames in a row" in said[0], live.warnings
+    live, _, _ = _live_run(sample_offline, lambda n, t: [t, t] if n == 50 else [t])
+    assert live.counts["frames_out_of_order"] == 1 and not any("stepped back" in w for w in live.warnings)
+
+
 def test_vision_results_wait_bounded_for_a_silent_imu(sample_offline):
     """Results pushed while no IMU sample has come (the camera started first, the IMU's ID is
     silent): only the history's span of them waits. Before, every result stayed queued: 18,000
