@@ -113,36 +113,51 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
     vis = r.vision[r.vision["valid"].astype(bool)] if r.vision is not None else None
     figs: dict[str, bytes] = {}
 
-    def band(ax, col, label, color):
+    settled = tf >= CONVERGENCE_S
+
+    def band(ax, col, label, color) -> list:
+        """The estimate and its 2-sigma band; returns what the panel's scale is set to show
+        (the band from the end of the convergence: the start's sigmas of degrees would squash
+        the rest, a bank of a few degrees drawn on a scale of +-50)."""
         y = f[f"{col}_deg"].to_numpy()
         s = f[f"{col}_sigma_deg"].to_numpy() if f"{col}_sigma_deg" in f else None
         ax.plot(tf, y, color=color, lw=1.2, label=label)
-        if s is not None:
-            ax.fill_between(tf, y - 2 * s, y + 2 * s, color=color, alpha=0.2, lw=0, label=f"{label} 2-sigma")
+        if s is None:
+            return [y]
+        ax.fill_between(tf, y - 2 * s, y + 2 * s, color=color, alpha=0.2, lw=0, label=f"{label} 2-sigma")
+        return [y, (y - 2 * s)[settled], (y + 2 * s)[settled]]
 
     # 1. attitude relative to the road
     fig, axes = plt.subplots(4, 1, figsize=(11, 11), sharex=True)
     for ax, a in zip(axes, ("roll", "pitch", "yaw", "bank")):
+        shown = []
         if a != "bank" and vis is not None and len(vis):
             ax.plot(vis["t_s"] + r.camera_time_offset_s - t0, vis[f"{a}_deg"], ".", ms=2.5, color="tab:orange",
                     label="vision", alpha=0.7)
+            shown.append(vis[f"{a}_deg"].to_numpy())
         if a == "bank" and r.plain_bank is not None and len(r.plain_bank):
             ax.plot(r.plain_bank["t_s"] - t0, r.plain_bank["bank_plain_deg"], ".", ms=2.5, color="tab:purple",
                     alpha=0.6, label="IMU roll - vision roll (Damon 2018)")
-        band(ax, a, "fused", "tab:blue")
+            shown.append(r.plain_bank["bank_plain_deg"].to_numpy())
+        shown += band(ax, a, "fused", "tab:blue")
         if truth is not None and f"{a}_deg" in truth:
             ax.plot(tf, truth[f"{a}_deg"], "k--", lw=1.0, label="truth")
+            shown.append(truth[f"{a}_deg"].to_numpy())
+        _scale_to(ax, shown)
     _finish(figs, "attitude.png", fig, axes, [f"{a} [deg]" for a in ("roll", "pitch", "yaw", "bank")],
             f"{r.title}: attitude relative to the road and road bank", ncol=4)
 
     # 2. relative to gravity
     fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
     for ax, a in zip(axes, ("roll_world", "pitch_world")):
-        band(ax, a, "fused", "tab:blue")
+        shown = band(ax, a, "fused", "tab:blue")
         if r.imu_only is not None:
             ax.plot(r.imu_only["t_s"] - t0, r.imu_only[f"{a}_deg"], color="tab:green", lw=1.0, label="IMU only")
+            shown.append(r.imu_only[f"{a}_deg"].to_numpy())
         if truth is not None and f"{a}_deg" in truth:
             ax.plot(tf, truth[f"{a}_deg"], "k--", lw=1.0, label="truth")
+            shown.append(truth[f"{a}_deg"].to_numpy())
+        _scale_to(ax, shown)
     _finish(figs, "world.png", fig, axes, ("roll_world [deg]", "pitch_world [deg]"), "attitude relative to gravity",
             ncol=4)
 
@@ -156,6 +171,13 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             s = f[f"{a}_sigma_deg"].to_numpy()
             ax.plot(tf, e, color="tab:blue", lw=1.0, label="fused - truth")
             ax.fill_between(tf, -2 * s, 2 * s, color="tab:blue", alpha=0.15, lw=0, label="+-2 sigma")
+            # the scale of the fused error once converged (as the RMSE is taken) and of most of its
+            # band: the start's sigmas, the band's peaks in runoffs (4.5 deg of bank for an error
+            # of 1.3 on the 60 s drive) and the vision's larger errors go off it
+            es, band2 = e[settled], 2 * s[settled]
+            band2 = band2[np.isfinite(band2)]
+            wide = float(np.percentile(band2, 95)) if band2.size else math.nan
+            _scale_to(ax, [es, -es, [wide, -wide]])
             if a != "bank" and vis is not None and len(vis):
                 tv = vis["t_s"].to_numpy() + r.camera_time_offset_s
                 tru_v = np.interp(tv, r.truth["t_s"], r.truth[f"{a}_deg"])
@@ -204,6 +226,20 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
     _finish(figs, "biases.png", fig, axes, ("gyro bias [deg/s]", "accel bias [m/s^2]"),
             "sensor bias estimates (dashed: truth)", ncol=3)
     return figs
+
+
+def _scale_to(ax, arrays, pad: float = 0.08, min_span: float = 0.02) -> None:
+    """The panel's y-limits around the finite values of ``arrays`` (what it is meant to show),
+    padded; those of nothing finite leave matplotlib's own."""
+    vals = [np.asarray(a, dtype=float).ravel() for a in arrays]
+    vals = np.concatenate(vals) if vals else np.empty(0)
+    vals = vals[np.isfinite(vals)]
+    if not vals.size:
+        return
+    lo, hi = float(vals.min()), float(vals.max())
+    span = max(hi - lo, min_span)
+    mid = 0.5 * (lo + hi)
+    ax.set_ylim(mid - (0.5 + pad) * span, mid + (0.5 + pad) * span)
 
 
 def _finish(figs: dict, name: str, fig, axes, ylabels, title: str, ncol: int) -> None:

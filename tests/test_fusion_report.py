@@ -12,8 +12,9 @@ from fusion_support import synth_drive
 
 @pytest.fixture(scope="module")
 def drawn():
-    """The report's figures of a 6 s synthetic drive: ``{png name: [(ylabel, labels, bands)]}``
-    with each axis's legend labels and the number of filled bands on it."""
+    """The report's figures of a 6 s synthetic drive: ``{png name: [(ylabel, labels, bands,
+    ylim)]}`` with each axis's legend labels, the number of filled bands on it and its y-limits;
+    ``drawn["inputs"]``: what was drawn."""
     d = synth_drive("banked_curves_60s.toml", duration_s=6.0, vision_sigma_deg=0.1)
     run = fuse(d.imu, d.vision, lever_arm_m=d.lever_arm_m)
     imu_only = fuse(d.imu, None, lever_arm_m=d.lever_arm_m).fused
@@ -24,7 +25,7 @@ def drawn():
 
     def to_png(fig):
         drawn_in_order.append([(ax.get_ylabel(), [t.get_text() for t in ax.get_legend().get_texts()]
-                                if ax.get_legend() else [], len(ax.collections)) for ax in fig.axes])
+                                if ax.get_legend() else [], len(ax.collections), ax.get_ylim()) for ax in fig.axes])
         return real(fig)
 
     mp = pytest.MonkeyPatch()
@@ -34,11 +35,11 @@ def drawn():
     finally:
         mp.undo()
     assert all(len(png) > 10_000 and png[:4] == b"\x89PNG" for png in figs.values())
-    return dict(zip(figs, drawn_in_order))          # figs is filled in drawing order
+    return {**dict(zip(figs, drawn_in_order)), "inputs": inputs}   # figs is filled in drawing order
 
 
 def test_attitude_against_truth_with_the_band(drawn):
-    rows = dict((y, (labels, bands)) for y, labels, bands in drawn["attitude.png"])
+    rows = dict((y, (labels, bands)) for y, labels, bands, _ in drawn["attitude.png"])
     for a in ("roll", "pitch", "yaw"):
         labels, bands = rows[f"{a} [deg]"]
         assert {"vision", "fused", "fused 2-sigma", "truth"} <= set(labels) and bands >= 1, (a, labels)
@@ -47,14 +48,42 @@ def test_attitude_against_truth_with_the_band(drawn):
 
 
 def test_gravity_referenced_attitude_with_the_imu_alone(drawn):
-    for _, labels, bands in drawn["world.png"]:
+    for _, labels, bands, _ in drawn["world.png"]:
         assert {"fused", "fused 2-sigma", "IMU only", "truth"} <= set(labels) and bands >= 1, labels
 
 
 def test_errors_against_truth_with_the_band(drawn):
-    rows = dict((y, (labels, bands)) for y, labels, bands in drawn["errors.png"])
+    rows = dict((y, (labels, bands)) for y, labels, bands, _ in drawn["errors.png"])
     for a in ("roll", "pitch", "yaw"):
         labels, bands = rows[f"{a} error [deg]"]
         assert {"fused - truth", "+-2 sigma", "vision - truth"} <= set(labels) and bands >= 1, (a, labels)
     labels, bands = rows["bank error [deg]"]
     assert {"fused - truth", "+-2 sigma"} <= set(labels) and bands >= 1, labels
+
+
+def test_the_panels_are_scaled_to_the_converged_estimates(drawn):
+    """The first seconds' sigmas (degrees: the filter has not met the vision yet) no longer set
+    the scale: the 60 s drive's bank error of tenths of a degree was drawn on +-50 deg. Each
+    error panel shows every fused error after the 2 s of convergence and is at most 1.5 times
+    the larger of that error and most (95 %) of its 2-sigma band; the bank panel shows the
+    truth within a few degrees of it."""
+    import numpy as np
+
+    from fusion.metrics import interp_truth
+
+    f = drawn["inputs"].fused
+    truth = interp_truth(drawn["inputs"].truth, f["t_s"].to_numpy())
+    settled = f["t_s"].to_numpy() - f["t_s"].iloc[0] >= report.CONVERGENCE_S
+    assert f.loc[~settled, "bank_sigma_deg"].max() > 5 * f.loc[settled, "bank_sigma_deg"].max()   # the case
+    limits = {y: lim for y, _, _, lim in drawn["errors.png"]}
+    for a in ("roll", "pitch", "yaw", "bank"):
+        e = (f[f"{a}_deg"] - truth[f"{a}_deg"]).to_numpy()[settled]
+        e = e[np.isfinite(e)]                   # the truth ends before the last sample
+        half = 0.5 * (limits[f"{a} error [deg]"][1] - limits[f"{a} error [deg]"][0])
+        lo, hi = limits[f"{a} error [deg]"]
+        wide = np.percentile(2 * f[f"{a}_sigma_deg"].to_numpy()[settled], 95)
+        assert lo <= e.min() and e.max() <= hi, (a, e.min(), e.max(), lo, hi)
+        assert half <= 1.5 * max(np.abs(e).max(), wide), (a, half, np.abs(e).max(), wide)
+    lo, hi = {y: lim for y, _, _, lim in drawn["attitude.png"]}["bank [deg]"]
+    tb = truth["bank_deg"].dropna().to_numpy()
+    assert lo <= tb.min() and tb.max() <= hi and hi - lo < tb.max() - tb.min() + 6.0, (lo, hi, tb.min(), tb.max())
