@@ -215,16 +215,26 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
 
     # 5. sensor biases
     fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
+    shown: list[list] = [[], []]
     for i, ax_name in enumerate("xyz"):
-        axes[0].plot(tf, f[f"gyro_bias_{ax_name}_deg_s"], lw=1.0, label=f"gyro {ax_name}", color=f"C{i}")
-        axes[1].plot(tf, f[f"accel_bias_{ax_name}_m_s2"], lw=1.0, label=f"accel {ax_name}", color=f"C{i}")
+        for k, (kind, unit) in enumerate((("gyro", "deg_s"), ("accel", "m_s2"))):
+            y = f[f"{kind}_bias_{ax_name}_{unit}"].to_numpy()
+            axes[k].plot(tf, y, lw=1.0, label=f"{kind} {ax_name}", color=f"C{i}")
+            shown[k].append(y[settled])
+            sig = f.get(f"{kind}_bias_{ax_name}_sigma_{unit}")
+            if sig is not None:   # the lateral accelerometer's: what bounds the bank (README)
+                sig = sig.to_numpy()
+                axes[k].fill_between(tf, y - 2 * sig, y + 2 * sig, color=f"C{i}", alpha=0.12, lw=0)
+                shown[k] += [(y - 2 * sig)[settled], (y + 2 * sig)[settled]]
         if r.imu_truth is not None and f"gyro_bias_{ax_name}_rad_s" in r.imu_truth:
-            axes[0].plot(r.imu_truth["t_s"] - t0, np.degrees(r.imu_truth[f"gyro_bias_{ax_name}_rad_s"]), "--",
-                         color=f"C{i}", lw=0.8)
-            axes[1].plot(r.imu_truth["t_s"] - t0, r.imu_truth[f"accel_bias_{ax_name}_m_s2"], "--",
-                         color=f"C{i}", lw=0.8)
+            tb = (np.degrees(r.imu_truth[f"gyro_bias_{ax_name}_rad_s"]), r.imu_truth[f"accel_bias_{ax_name}_m_s2"])
+            for k in (0, 1):
+                axes[k].plot(r.imu_truth["t_s"] - t0, tb[k], "--", color=f"C{i}", lw=0.8)
+                shown[k].append(tb[k].to_numpy())
+    for ax, arrays in zip(axes, shown):
+        _scale_to(ax, arrays, min_span=1e-3)
     _finish(figs, "biases.png", fig, axes, ("gyro bias [deg/s]", "accel bias [m/s^2]"),
-            "sensor bias estimates (dashed: truth)", ncol=3)
+            "sensor bias estimates and their 2-sigma bands (dashed: truth)", ncol=3)
     return figs
 
 

@@ -87,3 +87,10 @@ def test_the_panels_are_scaled_to_the_converged_estimates(drawn):
     lo, hi = {y: lim for y, _, _, lim in drawn["attitude.png"]}["bank [deg]"]
     tb = truth["bank_deg"].dropna().to_numpy()
     assert lo <= tb.min() and tb.max() <= hi and hi - lo < tb.max() - tb.min() + 6.0, (lo, hi, tb.min(), tb.max())
+
+
+def test_the_biases_with_their_band(drawn):
+    """Each bias estimate with its 2-sigma band (the lateral accelerometer's sigma bounds the
+    bank: README): six bands on the two panels."""
+    bands = [b for _, _, b, _ in drawn["biases.png"]]
+    assert bands == [3, 3], bands
