@@ -35,6 +35,7 @@ import argparse
 import hashlib
 import json
 import math
+import os
 import shutil
 import statistics
 import subprocess
@@ -85,6 +86,50 @@ def run_cli(drive: Path, out: Path, *extra: str) -> tuple[float, dict]:
     if proc.returncode != 0:
         raise SystemExit(f"vifusion run failed on {drive}:\n{proc.stderr}")
     return wall, json.loads((out / "report" / "summary.json").read_text())
+
+
+def _tree_pss_mb(pid: int) -> tuple[float, float]:
+    """(sum, largest) proportional set size over process ``pid`` and its descendants, MB (Linux
+    ``/proc``): the vision workers share the pages forked from the run's process, which their
+    resident sizes would each count whole."""
+    pids, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        pids.append(p)
+        try:
+            for task in os.listdir(f"/proc/{p}/task"):
+                with open(f"/proc/{p}/task/{task}/children") as fh:
+                    todo += [int(c) for c in fh.read().split()]
+        except OSError:          # gone meanwhile
+            pass
+    sizes = []
+    for p in pids:
+        try:
+            with open(f"/proc/{p}/smaps_rollup") as fh:
+                sizes += [int(line.split()[1]) / 1024.0 for line in fh if line.startswith("Pss:")]
+        except OSError:
+            pass
+    return sum(sizes), max(sizes, default=0.0)
+
+
+def run_memory(drive: Path, out: Path, *extra: str) -> tuple[float, float]:
+    """Peak memory of a whole ``vifusion run`` (a run of its own, not timed): the largest sum of
+    the processes' proportional set sizes, and the largest one process's, MB, sampled every
+    50 ms."""
+    import tempfile
+
+    with tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "fusion", "run", "--drive", str(drive), "--out", str(out),
+                                 "--quiet", *extra], stdout=subprocess.DEVNULL, stderr=err)
+        total = one = 0.0
+        while proc.poll() is None:
+            s, largest = _tree_pss_mb(proc.pid)
+            total, one = max(total, s), max(one, largest)
+            time.sleep(0.05)
+        if proc.returncode != 0:
+            err.seek(0)
+            raise SystemExit(f"vifusion run failed on {drive}:\n{err.read()}")
+    return total, one
 
 
 def lane_loss(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[float, float, float]:
@@ -403,8 +448,12 @@ def main(argv=None) -> int:
         fixed = [w - sum(sm["timings_s"].get(k, 0.0) for k in ("vision", "CAN decode", "fusion", "outputs"))
                  for w, sm in runs]
         rest = [100 * (w - f) / dur for (w, _), f in zip(runs, fixed)]
+        mem_dir = drive.parent / (drive.name + "-run-memory")
+        memory = run_memory(drive, mem_dir) + run_memory(drive, mem_dir, "--smooth")
+        shutil.rmtree(mem_dir, ignore_errors=True)
         speed_rows.append((name, dur, float(np.median([w for w, _ in runs])), float(np.median(fixed)),
-                           (float(np.median(rest)), min(rest), max(rest)), filter_rate(drive), live_cost_us(drive)))
+                           (float(np.median(rest)), min(rest), max(rest)), filter_rate(drive), live_cost_us(drive),
+                           memory))
         shutil.rmtree(drive.parent / (drive.name + "-run-smooth"), ignore_errors=True)
     # A campaign with one IMU: the single-curve drives started from the IMU biases the drive with
     # curves both ways ended with (fusion.calibration).
@@ -487,14 +536,15 @@ def main(argv=None) -> int:
         print(f"{name:<26} {cells}")
     print()
     print(f"{'drive':<26} {'duration':>9} {'vifusion run':>13} {'fixed':>7} {'rest / duration (range)':>24} "
-          f"{'filter alone':>16} {'LiveFusion':>14}")
-    for name, dur, wall, fixed, (rest, lo, hi), rate, live_us in speed_rows:
+          f"{'filter alone':>16} {'LiveFusion':>14} {'memory: run':>12} {'--smooth':>9}")
+    for name, dur, wall, fixed, (rest, lo, hi), rate, live_us, (mem, mem_one, mem_s, mem_s_one) in speed_rows:
         print(f"{name:<26} {dur:8.1f}s {wall:12.1f}s {fixed:6.1f}s {rest:10.1f}% ({lo:4.1f}-{hi:4.1f}%) "
-              f"{rate:11,.0f} /s {live_us:9.0f} us/sample")
+              f"{rate:11,.0f} /s {live_us:9.0f} us/sample {mem:5.0f} ({mem_one:3.0f}) {mem_s:4.0f} ({mem_s_one:3.0f}) MB")
     print(f"(vifusion run: wall time of the whole command in a subprocess, 2 cores, median of {SPEED_RUNS} runs;")
-    print(" fixed = start-up + report;")
+    print(" fixed = start-up + report; the rest: vision, CAN decode, fusion, writing the tables;")
     print(" filter alone: IMU samples/s through the forward filter with vision; LiveFusion: CAN decode + filter")
-    print(" + vision results, per IMU sample)")
+    print(" + vision results, per IMU sample; memory: peak of the processes' summed proportional set size, in")
+    print(" brackets the largest one process's, in a run of its own, sampled every 50 ms)")
     return 0
 
 
