@@ -187,11 +187,13 @@ def frames_outside_warning(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: 
             f"{after} after) and are not used: are {frames_name}'s times in seconds on the CAN log's clock?")
 
 
-def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str) -> str | None:
+def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str, fps: float) -> str | None:
     """A warning when the video holds more than a second of frames after the last one that
     ``frames`` lists (a frames.csv cut short: the frames after it are not processed), or None.
     The video's length is its container's frame count (a folder's pictures), read without
-    decoding; a container without one is not checked."""
+    decoding; a container without one is not checked. The time a video frame takes is the
+    listed frames' (their time span over their number span: a listing of every n-th frame is
+    as good), or ``1 / fps`` when one frame is listed (``[video] fps``, the container's rate)."""
     if not len(frames):
         return None
     import av
@@ -205,14 +207,18 @@ def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str)
             n_video = len(src.files)
         else:
             with av.open(str(video)) as container:
-                n_video = int(container.streams.video[0].frames)
+                stream = container.streams.video[0]
+                n_video = int(stream.frames)
+                if stream.average_rate:
+                    fps = float(stream.average_rate)
     except (VisionError, av.FFmpegError, OSError, IndexError):   # the vision's own reading says what is wrong
         return None
     t = frames["t_s"].to_numpy(dtype=float)
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    last = int(frames["frame"].iloc[-1])
+    f = frames["frame"].to_numpy(dtype=float)
+    dt = (t[-1] - t[0]) / (f[-1] - f[0]) if len(f) > 1 and f[-1] > f[0] else 1.0 / fps if fps > 0 else 0.0
+    last = int(f[-1])
     extra = n_video - 1 - last
-    if dt <= 0.0 or extra * dt <= 1.0:
+    if not dt > 0.0 or extra * dt <= 1.0:
         return None
     return (f"{video} holds {n_video} frames; {frames_name} lists up to frame {last}: the last {extra} "
             f"({extra * dt:.1f} s) are not processed")

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import calibration_table
-from .metrics import consistency, interp_truth, rmse_table
+from .metrics import ANGLES, consistency, interp_truth, rmse_table
 
 __all__ = ["ReportInputs", "write_report", "summarise"]
 
@@ -161,12 +161,14 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
     _finish(figs, "world.png", fig, axes, ("roll_world [deg]", "pitch_world [deg]"), "attitude relative to gravity",
             ncol=4)
 
-    # 3. errors against truth with the 2-sigma envelope
-    if truth is not None:
-        fig, axes = plt.subplots(4, 1, figsize=(11, 9), sharex=True)
-        for ax, a in zip(axes, ("roll", "pitch", "yaw", "bank")):
-            if f"{a}_deg" not in truth:
-                continue
+    # 3. errors against truth with the 2-sigma envelope: every angle the truth has (a real
+    # recording's reference may have the world angles only)
+    scored = [a for a in ANGLES if truth is not None and f"{a}_deg" in truth and f"{a}_deg" in f
+              and np.isfinite(truth[f"{a}_deg"].to_numpy(dtype=float)).any()]
+    if scored:
+        fig, axes = plt.subplots(len(scored), 1, figsize=(11, 2.25 * len(scored)), sharex=True, squeeze=False)
+        axes = axes[:, 0]
+        for ax, a in zip(axes, scored):
             e = f[f"{a}_deg"].to_numpy() - truth[f"{a}_deg"].to_numpy()
             s = f[f"{a}_sigma_deg"].to_numpy()
             ax.plot(tf, e, color="tab:blue", lw=1.0, label="fused - truth")
@@ -178,11 +180,15 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             band2 = band2[np.isfinite(band2)]
             wide = float(np.percentile(band2, 95)) if band2.size else math.nan
             _scale_to(ax, [es, -es, [wide, -wide]])
-            if a != "bank" and vis is not None and len(vis):
+            if a in ("roll", "pitch", "yaw") and vis is not None and len(vis):
                 tv = vis["t_s"].to_numpy() + r.camera_time_offset_s
                 tru_v = np.interp(tv, r.truth["t_s"], r.truth[f"{a}_deg"])
                 ax.plot(tv - t0, vis[f"{a}_deg"].to_numpy() - tru_v, ".", ms=2, color="tab:orange", alpha=0.5,
                         label="vision - truth")
+            if a.endswith("_world") and r.imu_only is not None:
+                tru_i = interp_truth(r.truth, r.imu_only["t_s"].to_numpy())[f"{a}_deg"].to_numpy()
+                ax.plot(r.imu_only["t_s"] - t0, r.imu_only[f"{a}_deg"].to_numpy() - tru_i, color="tab:green", lw=0.8,
+                        label="IMU only - truth")
             ax.set_ylabel(f"{a} error [deg]")
             ax.grid(alpha=0.3)
             ax.legend(loc="upper right", fontsize=8, ncol=3)

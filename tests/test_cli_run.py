@@ -237,7 +237,8 @@ def test_video_shorter_than_frames_csv_is_a_warning(copy, tmp_path):
 def test_video_longer_than_frames_csv_is_a_warning(copy, tmp_path):
     """A frames.csv cut short (the last 20 of 30 frames, 1.3 s, not listed): the run goes on
     with the frames listed and says how many of the video's it leaves out (it said nothing,
-    and the fused table simply ended early). The run of the whole list says nothing of it."""
+    and the fused table simply ended early); a listing of every 4th frame is timed by its own
+    spacing per frame number. The run of the whole list says nothing of it."""
     frames = pd.read_csv(copy / "frames.csv")
     frames.head(10).to_csv(copy / "frames.csv", index=False, float_format="%.6f")
     out = tmp_path / "out"
@@ -246,6 +247,15 @@ def test_video_longer_than_frames_csv_is_a_warning(copy, tmp_path):
     summary = json.loads((out / "report" / "summary.json").read_text())
     assert any("holds 30 frames" in w and "up to frame 9: the last 20 (1.3 s) are not processed" in w
                for w in summary["warnings"]), summary["warnings"]
+    # every 4th frame listed, up to frame 28 of 30: the one after it is 0.07 s, not 4 times more
+    frames.iloc[::4].to_csv(copy / "frames.csv", index=False, float_format="%.6f")
+    r = vifusion("run", "--drive", copy, "--out", out, "--quiet", "--no-report")
+    summary = json.loads((out / "report" / "summary.json").read_text())
+    assert r.returncode == 0 and not any("not processed" in w for w in summary["warnings"]), summary["warnings"]
+    frames.iloc[::4].head(3).to_csv(copy / "frames.csv", index=False, float_format="%.6f")   # up to frame 8
+    r = vifusion("run", "--drive", copy, "--out", out, "--quiet", "--no-report")
+    summary = json.loads((out / "report" / "summary.json").read_text())
+    assert any("the last 21 (1.4 s) are not processed" in w for w in summary["warnings"]), summary["warnings"]
     frames.to_csv(copy / "frames.csv", index=False, float_format="%.6f")
     r = vifusion("run", "--drive", copy, "--out", out, "--quiet", "--no-report")
     summary = json.loads((out / "report" / "summary.json").read_text())
@@ -634,6 +644,10 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_work(drive, tmp_p
     # the campaign's folder inside a drive's (its outputs would mix with the drive's files)
     one_line_error(vifusion("campaign", drive, "--out", drive / "campaign"), "inside the drive")
     assert not (drive / "campaign").exists()
+    # ... or a drive's output folder the drive itself (`campaign runs/d1 --out runs`): it was
+    # found out on the drive's turn, after the drives before it had run
+    one_line_error(vifusion("campaign", drive, "--out", drive.parent), "would replace the drive")
+    assert not (drive.parent / "campaign.csv").exists()
 
 
 def test_a_reader_that_goes_away_is_no_traceback(drive, tmp_path):
@@ -693,7 +707,9 @@ def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch
     """Ctrl-C inside numba's compiler comes out as RuntimeError ("no compiled object yet"), in a
     vision worker as SystemError: a review got those tracebacks on 2 of 21 interrupts. Any
     error after this process got SIGINT is the interrupt (exit 130, one line); the same error
-    without an interrupt is still a bug's traceback. A real SIGINT, sent to this process."""
+    without an interrupt is still a bug's traceback. An interrupt raised in a finalizer, which
+    Python prints and drops ("Exception ignored"), is raised again in the main thread (a review
+    found it first silenced, the run going on). A real SIGINT, sent to this process."""
     import os
     import signal
     import time
@@ -710,9 +726,24 @@ def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch
         pytest.fail("no SIGINT arrived")
 
     monkeypatch.setattr(run_cmd, "run", compiler_interrupted)
+    hook = sys.unraisablehook
     assert main(["run"]) == 130
     assert capsys.readouterr().err == "error: interrupted\n"
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler   # put back
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler and sys.unraisablehook is hook  # put back
+
+    class Finalizer:   # the interrupt arrives in a finalizer, where Python can only print it
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+
+    def interrupted_in_a_finalizer(args):
+        Finalizer()
+        time.sleep(5.0)          # raised again here, in the main thread
+        pytest.fail("the interrupt went missing")
+
+    monkeypatch.setattr(run_cmd, "run", interrupted_in_a_finalizer)
+    assert main(["run"]) == 130
+    assert capsys.readouterr().err == "error: interrupted\n"     # no "Exception ignored" traceback
 
     def a_bug(args):
         raise RuntimeError("a bug")

@@ -351,6 +351,9 @@ def test_a_camera_clock_that_steps_back_is_said(sample_offline):
     assert len(said) == 1 and "30 frames in a row" in said[0], live.warnings
     live, _, _ = _live_run(sample_offline, lambda n, t: [t, t] if n == 50 else [t])
     assert live.counts["frames_out_of_order"] == 1 and not any("stepped back" in w for w in live.warnings)
+    # 29 behind, one good, 29 behind: a good frame ends the run of them
+    live, _, _ = _live_run(sample_offline, lambda n, t: [t - 20.0] if 100 <= n < 159 and n != 129 else [t])
+    assert live.counts["frames_out_of_order"] == 58 and not any("stepped back" in w for w in live.warnings)
 
 
 def test_vision_results_wait_bounded_for_a_silent_imu(sample_offline):

@@ -59,6 +59,34 @@ def test_errors_against_truth_with_the_band(drawn):
         assert {"fused - truth", "+-2 sigma", "vision - truth"} <= set(labels) and bands >= 1, (a, labels)
     labels, bands = rows["bank error [deg]"]
     assert {"fused - truth", "+-2 sigma"} <= set(labels) and bands >= 1, labels
+    for a in ("roll_world", "pitch_world"):
+        labels, bands = rows[f"{a} error [deg]"]
+        assert {"fused - truth", "+-2 sigma", "IMU only - truth"} <= set(labels) and bands >= 1, (a, labels)
+
+
+def test_a_truth_of_world_angles_only_has_their_errors_drawn():
+    """A real recording's reference (an INS: KITTI's OXTS) has the world angles only: the error
+    figure shows those two (it was four empty panels of the road angles, a review found)."""
+    import pandas as pd
+
+    d = synth_drive("banked_curves_60s.toml", duration_s=4.0, vision_sigma_deg=0.1)
+    run = fuse(d.imu, d.vision, lever_arm_m=d.lever_arm_m)
+    truth = d.truth[["t_s", "roll_world_deg", "pitch_world_deg"]]
+    assert isinstance(truth, pd.DataFrame)
+    got = []
+    real = report._fig_to_png
+
+    def to_png(fig):
+        got.append([ax.get_ylabel() for ax in fig.axes])
+        return real(fig)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(report, "_fig_to_png", to_png)
+    try:
+        figs = report._plots(report.ReportInputs(fused=run.fused, vision=d.vision, truth=truth, cov=run.cov))
+    finally:
+        mp.undo()
+    assert dict(zip(figs, got))["errors.png"] == ["roll_world error [deg]", "pitch_world error [deg]"]
 
 
 def test_the_panels_are_scaled_to_the_converged_estimates(drawn):

@@ -86,7 +86,11 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     interrupted = _InterruptWatch(quiet=not args.debug)
     try:
-        return int(args.func(args) or 0)
+        status = int(args.func(args) or 0)
+        if interrupted.seen:   # a library dropped the KeyboardInterrupt and the run went on
+            print("warning: interrupted where it could not stop (inside a library): the run went on to the end",
+                  file=sys.stderr)
+        return status
     except BrokenPipeError:
         # the reader of the output went away ('vifusion can LOG ... | head'): no more to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -111,15 +115,17 @@ def main(argv: list[str] | None = None) -> int:
 class _InterruptWatch:
     """Records whether this process got SIGINT (and raises KeyboardInterrupt as Python's own
     handler does), for as long as the command runs; only where Python's handler is in place,
-    in the main thread. With ``quiet``, what the interrupt leaves behind in callbacks and
-    finalizers (numba's LLVM bindings: "Exception ignored ...", three tracebacks at once) is
-    not printed after it: the command ends with its one line."""
+    in the main thread. With ``quiet``, once interrupted: a KeyboardInterrupt raised where
+    Python cannot pass it on (numba's LLVM callbacks: "Exception ignored ...") is raised again
+    in the main thread instead of printed and lost, and the other errors of finalizers that the
+    interrupt left half built are not printed (``--debug`` prints them)."""
 
     def __init__(self, quiet: bool = True):
         self.seen = False
         self._quiet = quiet
         self._before = signal.getsignal(signal.SIGINT)
         self._hook = sys.unraisablehook
+        self._resent: list[threading.Thread] = []
         self._active = threading.current_thread() is threading.main_thread() and self._before is signal.default_int_handler
         if self._active:
             signal.signal(signal.SIGINT, self._on_interrupt)
@@ -127,17 +133,41 @@ class _InterruptWatch:
     def _on_interrupt(self, signum, frame):
         self.seen = True
         if self._quiet:
-            sys.unraisablehook = _ignore
+            sys.unraisablehook = self._unraisable
         raise KeyboardInterrupt
+
+    def _unraisable(self, unraisable) -> None:
+        if (unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt)
+                and not self._resent):   # once: one Ctrl-C, one interrupt
+            # the interrupt again, where it can stop the command: from another thread once this
+            # hook has returned (raised in the hook it would be lost again), as a real signal to
+            # the main thread (which wakes it from a sleep, as _thread.interrupt_main would not)
+            returned = threading.Event()
+            thread = threading.Thread(target=self._interrupt_after, args=(returned,), daemon=True)
+            try:
+                thread.start()
+                self._resent.append(thread)
+            except RuntimeError:         # the interpreter is shutting down: it stops anyway
+                pass
+            returned.set()
+        # others after the interrupt: what it left half built (llvmlite's finalizers: "'PassBuilder'
+        # object has no attribute '_as_parameter_'"); --debug shows them
+
+    @staticmethod
+    def _interrupt_after(returned: threading.Event) -> None:
+        returned.wait(1.0)
+        time.sleep(0.01)                 # the hook's last steps
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
 
     def close(self) -> None:
         if self._active:
+            if self._resent:             # an interrupt sent again after the command ended: not raised
+                signal.signal(signal.SIGINT, lambda signum, frame: None)
+                for thread in self._resent:
+                    thread.join(2.0)
+                time.sleep(0.001)        # Python code runs the no-op on the signal, if one is pending
             signal.signal(signal.SIGINT, self._before)
             sys.unraisablehook = self._hook
-
-
-def _ignore(unraisable) -> None:
-    pass
 
 
 def workers_arg(text: str) -> int:

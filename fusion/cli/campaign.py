@@ -61,9 +61,16 @@ def run(args: argparse.Namespace) -> int:
     if clash:   # said now, not after every drive
         raise InputError(f"a drive named {clash[0]}: its output folder would be the campaign's table")
     out_dir = args.out.resolve()
-    inside = [d for d in args.drives if out_dir == Path(d).resolve() or Path(d).resolve() in out_dir.parents]
+    drives = [Path(d).resolve() for d in args.drives]
+    inside = [d for d, r in zip(args.drives, drives) if out_dir == r or r in out_dir.parents]
     if inside:   # the campaign's folders and tables would be mixed into a drive's own files
         raise InputError(f"--out {args.out} is inside the drive {inside[0]}: give the campaign a folder of its own")
+    for name in names:   # a drive's output folder may not be, hold or lie in a drive (found out on its turn)
+        target = out_dir / name
+        clash = [d for d, r in zip(args.drives, drives) if r == target or r in target.parents or target in r.parents]
+        if clash:
+            raise InputError(f"--out {args.out}: the output folder {target} of drive {name} would replace the drive "
+                             f"{clash[0]}: give the campaign a folder of its own")
     args.out.mkdir(parents=True, exist_ok=True)
     calibration = args.calibration
     rows = []

@@ -175,7 +175,7 @@ def _run(args: argparse.Namespace) -> int:
     frame_t, imu_t, frames_name = frames["t_s"].to_numpy() + offset_s, imu["t_s"].to_numpy(), str(files.frames or files.video)
     check_overlap(frame_t, imu_t, frames_name, str(files.can_log))
     for warning in (frames_outside_warning(frame_t, imu_t, frames_name),
-                    frames_unlisted_warning(files.video, frames, frames_name) if files.frames else None):
+                    frames_unlisted_warning(files.video, frames, frames_name, cfg.video.fps) if files.frames else None):
         if warning:
             warnings.append(warning)
 
