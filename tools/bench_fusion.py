@@ -1,4 +1,4 @@
-"""Benchmark of the fusion (issue 5): accuracy against truth, consistency, lane loss, speed.
+"""Benchmark of the fusion (issue 5): accuracy against truth, consistency, lane loss, speed, memory.
 
 Usage::
 
@@ -23,8 +23,10 @@ runs the whole ``vifusion run`` as a user would (a subprocess, timed), then prin
 * the camera-to-CAN clock offset estimated from the data, with the frame times shifted by 0 and
   100 ms;
 * speed: the run's wall time against the drive's duration, with the fixed costs apart (median
-  and range of ``SPEED_RUNS`` runs: the machine is shared), and the filter alone in IMU samples
-  per second.
+  and range of ``SPEED_RUNS`` runs: the machine is shared), the filter alone in IMU samples
+  per second, and LiveFusion's cost per IMU sample;
+* memory: the peak of a ``vifusion run`` and of a ``vifusion run --smooth`` (runs of their
+  own), summed over its processes (proportional set sizes) and of the largest one.
 
 Full drives (video, CAN log, truth) are cached under ``.cache/drives/full-<name>-<key>/``.
 """
