@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import resource
 import sys
 import threading
 import time
@@ -109,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{live.samples} IMU samples, vision used {live.stream.counts['vision_used']} times "
           f"({live.stream.counts['vision_late']} late), warnings: {live.warnings or 'none'}; "
           f"wrote {args.out / 'calibration.toml'}")
+    # what the process took at most: the embedding's footprint (Linux reports kB)
+    print(f"peak resident memory of this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
     return 0
 
 
