@@ -726,7 +726,7 @@ class Estimator:
                     step = np.concatenate([n1 - n_, np.zeros((n_.shape[0], 1))], -1)
                     edges.append(_Edge(np.concatenate([n_, np.ones((n_.shape[0], 1))], -1), j, side, True, step))
         n_points = int(sum(e.rays.shape[0] for e in edges))
-        rms_px = float(np.sqrt(np.mean([m.rms_left**2 + m.rms_right**2 for m in lines]) / 2.0))
+        rms_px = float(np.sqrt(_mean(np.array([m.rms_left**2 + m.rms_right**2 for m in lines])) / 2.0))
         shape_deg = o.fit_degree
 
         phi, theta, psi = pose0
@@ -837,9 +837,9 @@ class Estimator:
         all_centres = [0.5 * float(model.y(2 * j, x_c) + model.y(2 * j + 1, x_c)) for j in range(n_lines)]
         centres = [all_centres[0], all_centres[-1]]
         offsets = tuple(c + float(cam_off[1]) for c in all_centres)
-        curvature = float(np.mean([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
+        curvature = float(_mean_rows([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
         curvature_sigma = self._curvature_sigma(model, x_c, n_lines, curvature)
-        x_mean = float(np.mean(x_rows))
+        x_mean = float(_mean(x_rows))
         lookahead = x_mean - x_c
         span = (float(x_rows.min()) - x_c, float(x_rows.max()) - x_c)
         twisted = tw is not None if o.refine_iterations > 0 else False
@@ -1052,8 +1052,8 @@ class Estimator:
             slope[sel] = model.slope(j, x[sel])
         # the road turns about its centre: the middle line of three, else midway between two
         mid = [1] if J == 3 else [0, J - 1]
-        pivot = np.mean([0.5 * (model.y(2 * j, x) + model.y(2 * j + 1, x)) for j in mid], axis=0)
-        pivot0 = float(np.mean([0.5 * (model.y(2 * j, x0) + model.y(2 * j + 1, x0)) for j in mid]))
+        pivot = _mean_rows([0.5 * (model.y(2 * j, x) + model.y(2 * j + 1, x)) for j in mid])
+        pivot0 = float(_mean_rows([0.5 * (model.y(2 * j, x0) + model.y(2 * j + 1, x0)) for j in mid]))
         u = x - x0
         xl = max(x_ahead_m - x0, 1.0)
         lever = (y - x * slope) / (H - 0.5 * zeta * u * u + zeta * u * x)      # d y_projected / d height
@@ -1061,7 +1061,7 @@ class Estimator:
         # camera's psi1, theta1, :func:`_direction_rows`; ``J_vehicle``: :func:`_vehicle_jacobian`)
         rows = np.zeros((3, model.cov.shape[0]))
         if model.c.size:
-            rows[0] = np.mean([model.curvature_row(j, x0) for j in (0, J - 1)], axis=0)
+            rows[0] = _mean_rows([model.curvature_row(j, x0) for j in (0, J - 1)])
         Jv, cam = J_vehicle, dir_rows
         rows[1] = Jv[1, 1] * cam[1] + Jv[1, 2] * cam[0]                         # vehicle pitch
         rows[2] = Jv[2, 1] * cam[1] + Jv[2, 2] * cam[0]                         # vehicle yaw
@@ -1138,7 +1138,7 @@ class Estimator:
         if not model.c.size:
             fit = 0.0
         else:
-            row = np.mean([model.curvature_row(j, x_c) for j in (0, n_lines - 1)], axis=0)
+            row = _mean_rows([model.curvature_row(j, x_c) for j in (0, n_lines - 1)])
             fit = float(row @ model.cov @ row)
         floor, rel = CURVATURE_MODEL_SIGMA
         return math.sqrt(max(fit, 0.0) + floor**2 + (rel * curvature) ** 2)
@@ -1164,6 +1164,22 @@ class Estimator:
         if abs(p[2]) < 1e-12:
             raise VisionError("lane lines parallel in the image: no vanishing point")
         return p[:2] / p[2], segs
+
+
+def _mean(a: np.ndarray):
+    """``np.mean`` of a float array without its dispatch: the same sum (``np.add.reduce``) over
+    the same count (8 us a call less; called a dozen times a frame)."""
+    return np.add.reduce(a) / a.size
+
+
+def _mean_rows(rows: list):
+    """``np.mean(rows, axis=0)`` of one or two arrays (or numbers) of one shape: the first plus
+    the second, over their number, as numpy's reduction adds them (without building the array)."""
+    if len(rows) == 1:
+        return rows[0] / 1
+    if len(rows) == 2:
+        return (rows[0] + rows[1]) / 2
+    return np.mean(rows, axis=0)
 
 
 _STACK_CACHE: dict = {}
@@ -1325,7 +1341,7 @@ def _road_twist(model: LaneModel, xs, roll_rows, use_eq10: bool) -> tuple[float,
         return math.nan, math.nan
     delta = (coef[None, :] * np.tan(alphas)).sum(axis=1) / den
     rows = np.einsum("rg,rgp->rp", cq, d_alpha) / den[:, None]       # d delta_r / d p
-    w = xs - xs.mean()
+    w = xs - _mean(xs)
     w = w / float(w @ w)
     row = w @ rows
     return float(w @ delta), float(math.sqrt(max(float(row @ model.cov @ row), 0.0)))
@@ -1333,7 +1349,7 @@ def _road_twist(model: LaneModel, xs, roll_rows, use_eq10: bool) -> tuple[float,
 
 def _centre_axis(model: LaneModel) -> np.ndarray:
     """The middle line of three as :class:`vision.ipm.RoadTwist` takes it: ``(a, b, s, c2, c3)``."""
-    a = float(np.mean(model.a[model.edge_line == 1]))
+    a = float(_mean(model.a[model.edge_line == 1]))
     c = np.zeros(2)
     c[:model.c.size] = model.c[:2]
     return np.array([a, float(model.b[1]), float(model.line_scale[1]), c[0], c[1]])

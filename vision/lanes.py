@@ -562,7 +562,7 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
         if good.sum() < min_rows:
             continue
         m = Marker(rows[good].astype(float), ul[good], ur[good], c_med)
-        m.v0 = float(m.v.mean())
+        m.v0 = float(np.add.reduce(m.v) / m.v.size)       # m.v.mean() without its dispatch
         fl, rl, kl = _robust_fit(m.v, m.u_left, opts.fit_degree, m.v0)
         fr, rr, kr = _robust_fit(m.v, m.u_right, opts.fit_degree, m.v0)
         m.fit_left, m.fit_right, m.rms_left, m.rms_right = fl, fr, rl, rr
@@ -571,7 +571,7 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
             continue
         markers.append(m)
     # Merge duplicates (two starts tracking the same line).
-    markers.sort(key=lambda mk: float(np.mean(mk.u_center)))
+    markers.sort(key=lambda mk: float(np.add.reduce(mk.u_center) / mk.u_center.size))     # np.mean
     out: list[Marker] = []
     for mk in markers:
         if out:
