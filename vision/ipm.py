@@ -24,6 +24,7 @@ camera with distortion, two ``cv2.remap`` calls that fold the undistortion in).
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import cv2
@@ -426,7 +427,7 @@ class Bev:
                                    np.ascontiguousarray(twist.bank_change_rad, np.float64),
                                    np.ascontiguousarray(twist.axis, np.float64),
                                    np.ascontiguousarray(self.R_o_from_cp), np.ascontiguousarray(self.camera.K, np.float64),
-                                   float(pad))
+                                   float(pad), *_map_buffers(g.height, g.width))
             if undistort_maps is None:
                 return cv2.remap(image, xu, yu, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
             lut_x, lut_y, _ = undistort_maps
@@ -450,12 +451,28 @@ class Bev:
         return cv2.remap(image, xd, yd, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
+#: Per thread, the storage of :meth:`Bev.warp`'s surface maps, kept from warp to warp.
+_MAP_STORE = threading.local()
+
+
+def _map_buffers(n_rows: int, n_cols: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two float32 ``(n_rows, n_cols)`` arrays for the surface maps, views of storage kept from
+    call to call (per thread; they only live until the remap). Fresh ones (2 x 0.9 MB for the
+    HD drives' BEV) came from the system each time: 350 page faults, 0.45 ms of a 0.6 ms
+    warp."""
+    n = n_rows * n_cols
+    store = getattr(_MAP_STORE, "arrays", None)
+    if store is None or store[0].size < n:
+        store = (np.empty(n, np.float32), np.empty(n, np.float32))
+        _MAP_STORE.arrays = store
+    return store[0][:n].reshape(n_rows, n_cols), store[1][:n].reshape(n_rows, n_cols)
+
+
 @nb.njit(cache=True)
-def _surface_maps(n_rows, n_cols, x_max, y_max, dx, dy, H, zeta, x0, u_m, b_tab, axis, R, K, pad):  # pragma: no cover (numba)
+def _surface_maps(n_rows, n_cols, x_max, y_max, dx, dy, H, zeta, x0, u_m, b_tab, axis, R, K, pad, mx, my):  # pragma: no cover (numba)
     """Undistorted image pixel (plus ``pad``) of every BEV pixel on the surface of
-    :class:`Bev` ``surface``: float32 maps for ``cv2.remap`` (-1e6 behind the camera)."""
-    mx = np.empty((n_rows, n_cols), np.float32)
-    my = np.empty((n_rows, n_cols), np.float32)
+    :class:`Bev` ``surface``: float32 maps for ``cv2.remap`` (-1e6 behind the camera), into
+    ``mx``, ``my`` ``(n_rows, n_cols)``."""
     tau0 = _profile(u_m, b_tab, 0.0)[1]
     yc0 = _axis_y(axis, x0)[0]
     fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2] + pad, K[1, 1], K[1, 2] + pad
