@@ -393,6 +393,7 @@ class Estimator:
         self._height_memo: dict = {}
         self.twist_map = TwistMap()
         self._map_active = False
+        self._twist_probe: np.ndarray | None = None     # where _twist_ahead looks (fixed per object)
 
     # ---- public ----
 
@@ -431,8 +432,9 @@ class Estimator:
         tw = self.twist_map.profile(axis)
         if tw is None:
             return None
-        us = np.linspace(0.0, o.road_twist_fit_range_m, 6)
-        b = tw.bank_change(us)
+        if self._twist_probe is None:
+            self._twist_probe = np.linspace(0.0, o.road_twist_fit_range_m, 6)
+        b = tw.bank_change(self._twist_probe)
         if float(np.max(np.abs(b))) < math.radians(o.road_twist_min_deg):
             return None
         return tw
@@ -506,10 +508,11 @@ class Estimator:
         y0 = np.empty(len(markers))
         extent = np.empty(len(markers))
         for i, m in enumerate(markers):
-            x_near = float(g.x_of_row(m.v_near))
-            ul, ur = m.u_at(m.v_near)
+            v_near = m.v_near           # a property: the inliers' maximum each time
+            x_near = float(g.x_of_row(v_near))
+            ul, ur = m.u_at(v_near)
             y0[i] = float(g.y_of_col(0.5 * (ul[0] + ur[0]))) - 0.5 * curvature_1_m * x_near**2
-            extent[i] = m.v_near - m.v_far
+            extent[i] = v_near - m.v_far
         cand: list[int] = []
         for i in np.argsort(-y0):                      # left to right
             i = int(i)
@@ -733,7 +736,7 @@ class Estimator:
         # Vertical curvature of the surface the points are projected onto (1/m).
         use_sag = o.vertical_curvature and o.refine_iterations > 0
         zeta_prior, zeta_prior_sigma = zeta0
-        zeta = float(np.clip(zeta_prior, -_ZETA_MAX, _ZETA_MAX)) if use_sag else 0.0
+        zeta = float(min(max(zeta_prior, -_ZETA_MAX), _ZETA_MAX)) if use_sag else 0.0      # np.clip of a number
         sag = zeta if use_sag else None
         # The road's twist about its centre line (three lines), from the frames before
         # (:mod:`vision.twistmap`); the centre line it turns about, from the last lane model
@@ -834,11 +837,15 @@ class Estimator:
         s_roll, s_pitch, s_yaw = _vehicle_sigmas(J_vehicle, cov_cam)
         s_roll, s_pitch, s_yaw = (math.hypot(s, m) for s, m in zip((s_roll, s_pitch, s_yaw), _ANGLE_MODEL_SIGMA_RAD))
         # Curvature, lateral offset, spacing at the contact point, from the outermost lines used.
-        all_centres = [0.5 * float(model.y(2 * j, x_c) + model.y(2 * j + 1, x_c)) for j in range(n_lines)]
+        shape_c = model._shape(x_c)            # the lines' common shape term at x_c, once for all edges
+        all_centres = [0.5 * float(model.y(2 * j, x_c, shape_c) + model.y(2 * j + 1, x_c, shape_c))
+                       for j in range(n_lines)]
         centres = [all_centres[0], all_centres[-1]]
         offsets = tuple(c + float(cam_off[1]) for c in all_centres)
         curvature = float(_mean_rows([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
-        curvature_sigma = self._curvature_sigma(model, x_c, n_lines, curvature)
+        # the curvature's first-order row, for its sigma and the twist response
+        curvature_row = _mean_rows([model.curvature_row(j, x_c) for j in (0, n_lines - 1)]) if model.c.size else None
+        curvature_sigma = self._curvature_sigma(model, curvature, curvature_row)
         x_mean = float(_mean(x_rows))
         lookahead = x_mean - x_c
         span = (float(x_rows.min()) - x_c, float(x_rows.max()) - x_c)
@@ -861,7 +868,7 @@ class Estimator:
             # the map's uncertainty through the outputs' response to a twist here and ahead
             k = _TWIST_MAP_SIGMA_SCALE
             if model.linear is not None:
-                sens = np.abs(self._twist_response(model, H, x_c, zeta, x_mean, dir_rows, J_vehicle))
+                sens = np.abs(self._twist_response(model, H, x_c, zeta, x_mean, dir_rows, J_vehicle, curvature_row))
                 curvature_sigma = math.hypot(curvature_sigma, k * (sens[0, 0] * near_sigma + sens[0, 1] * span_sigma))
                 s_pitch = math.hypot(s_pitch, k * (sens[1, 0] * near_sigma + sens[1, 1] * span_sigma))
                 s_yaw = math.hypot(s_yaw, k * (sens[2, 0] * near_sigma + sens[2, 1] * span_sigma))
@@ -873,7 +880,7 @@ class Estimator:
         else:
             response = np.full((3, 2), math.nan)
             if o.refine_iterations > 0 and model.linear is not None:
-                response = self._twist_response(model, H, x_c, zeta, x_mean, dir_rows, J_vehicle)
+                response = self._twist_response(model, H, x_c, zeta, x_mean, dir_rows, J_vehicle, curvature_row)
         zeta_sigma = model.zeta_free_sigma if math.isfinite(model.zeta_free_sigma) else model.sigma_dzeta
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
@@ -928,7 +935,7 @@ class Estimator:
         x_rows = self._cross_x(model)
         if x_rows is None:
             return "the lines do not overlap along the road"
-        zeta_new = float(np.clip(zeta + model.dzeta, -_ZETA_MAX, _ZETA_MAX))
+        zeta_new = float(min(max(zeta + model.dzeta, -_ZETA_MAX), _ZETA_MAX))      # np.clip of a number
         alphas, coef = self._model_alphas(model, x_rows, use_eq10, ratio, _heights(x_rows, H, x0, zeta_new))
         delta = self._solve_roll(alphas, coef)
         return delta, psi_new, theta_new, zeta_new, x_rows
@@ -1017,7 +1024,7 @@ class Estimator:
 
     @staticmethod
     def _twist_response(model: LaneModel, H: float, x0: float, zeta: float, x_ahead_m: float, dir_rows,
-                        J_vehicle) -> np.ndarray:
+                        J_vehicle, curvature_row=None) -> np.ndarray:
         """How the outputs respond to the road twisting in view: ``(3, 2)``, rows curvature
         (1/m per rad/m), pitch and yaw (rad per rad/m), columns the twist at the contact point
         and at ``x_ahead_m`` (the cross-sections), the twist ``tau(x) = d bank / dx`` linear
@@ -1052,8 +1059,9 @@ class Estimator:
             slope[sel] = model.slope(j, x[sel])
         # the road turns about its centre: the middle line of three, else midway between two
         mid = [1] if J == 3 else [0, J - 1]
-        pivot = _mean_rows([0.5 * (model.y(2 * j, x) + model.y(2 * j + 1, x)) for j in mid])
-        pivot0 = float(_mean_rows([0.5 * (model.y(2 * j, x0) + model.y(2 * j + 1, x0)) for j in mid]))
+        shape, shape0 = model._shape(x), model._shape(x0)        # common to the lines' edges
+        pivot = _mean_rows([0.5 * (model.y(2 * j, x, shape) + model.y(2 * j + 1, x, shape)) for j in mid])
+        pivot0 = float(_mean_rows([0.5 * (model.y(2 * j, x0, shape0) + model.y(2 * j + 1, x0, shape0)) for j in mid]))
         u = x - x0
         xl = max(x_ahead_m - x0, 1.0)
         lever = (y - x * slope) / (H - 0.5 * zeta * u * u + zeta * u * x)      # d y_projected / d height
@@ -1061,7 +1069,8 @@ class Estimator:
         # camera's psi1, theta1, :func:`_direction_rows`; ``J_vehicle``: :func:`_vehicle_jacobian`)
         rows = np.zeros((3, model.cov.shape[0]))
         if model.c.size:
-            rows[0] = _mean_rows([model.curvature_row(j, x0) for j in (0, J - 1)])
+            rows[0] = (curvature_row if curvature_row is not None
+                       else _mean_rows([model.curvature_row(j, x0) for j in (0, J - 1)]))
         Jv, cam = J_vehicle, dir_rows
         rows[1] = Jv[1, 1] * cam[1] + Jv[1, 2] * cam[0]                         # vehicle pitch
         rows[2] = Jv[2, 1] * cam[1] + Jv[2, 2] * cam[0]                         # vehicle yaw
@@ -1125,9 +1134,11 @@ class Estimator:
         cov[0, 0] += sig_f**2
         return cov
 
-    def _curvature_sigma(self, model: LaneModel, x_c: float, n_lines: int, curvature: float) -> float:
+    def _curvature_sigma(self, model: LaneModel, curvature: float, row) -> float:
         """1-sigma of the reported curvature: the lane model's covariance (vertical curvature
-        included) and the model terms of :data:`CURVATURE_MODEL_SIGMA`.
+        included; ``row``: the curvature's first-order row in the model's parameters, the mean
+        of the outer lines' :meth:`LaneModel.curvature_row`) and the model terms of
+        :data:`CURVATURE_MODEL_SIGMA`.
 
         Where the fit chose straight lines (no shape term significant) this is 0 +- 0: the sigma
         given that choice, not the curvature's (the fusion floors it at 3e-4 1/m). Tried
@@ -1138,7 +1149,6 @@ class Estimator:
         if not model.c.size:
             fit = 0.0
         else:
-            row = _mean_rows([model.curvature_row(j, x_c) for j in (0, n_lines - 1)])
             fit = float(row @ model.cov @ row)
         floor, rel = CURVATURE_MODEL_SIGMA
         return math.sqrt(max(fit, 0.0) + floor**2 + (rel * curvature) ** 2)

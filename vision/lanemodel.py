@@ -205,10 +205,12 @@ class LaneModel:
             tp = tp * t
         return self.a[ks][:, None] + self.b[j][:, None] * x[None, :] + self.line_scale[j][:, None] * shape[None, :]
 
-    def y(self, k: int, x):
-        """Lateral position of edge ``k`` at ``x``, m."""
+    def y(self, k: int, x, shape=None):
+        """Lateral position of edge ``k`` at ``x``, m (``shape``: :meth:`_shape` at ``x``, when the
+        caller has it: it is common to all edges)."""
         j = self.edge_line[k]
-        return self.a[k] + self.b[j] * np.asarray(x, float) + self.line_scale[j] * self._shape(x)
+        return self.a[k] + self.b[j] * np.asarray(x, float) + self.line_scale[j] * (self._shape(x) if shape is None
+                                                                                      else shape)
 
     def slope(self, j: int, x):
         return self.b[j] + self.line_scale[j] * self._shape_d(x, 1)
