@@ -190,10 +190,8 @@ class RoadTwist:
     def bank_change(self, u):
         """``b(u)``, rad, at ``u`` m ahead of the contact point."""
         u = np.atleast_1d(np.asarray(u, float))
-        out = np.empty(u.size)
-        for i, v in enumerate(u.ravel()):
-            out[i] = _profile(self.u_m, self.bank_change_rad, float(v))[0]
-        return out.reshape(u.shape)
+        return _profile_many(np.ascontiguousarray(self.u_m, np.float64), np.ascontiguousarray(self.bank_change_rad, np.float64),
+                             np.ascontiguousarray(u.ravel())).reshape(u.shape)
 
     def height(self, x, y, x0_m: float):
         """``h(x, y)`` above the tangent plane (without the vertical curvature), m."""
@@ -216,6 +214,15 @@ def _profile(u_m, b, u):  # pragma: no cover (numba)
         i = np.searchsorted(u_m, u) - 1
     db = (b[i + 1] - b[i]) / (u_m[i + 1] - u_m[i])
     return b[i] + db * (u - u_m[i]), db
+
+
+@nb.njit(cache=True)
+def _profile_many(u_m, b, u):  # pragma: no cover (numba)
+    """``b(u)`` of :func:`_profile` at each of ``u`` (one call instead of one per point)."""
+    out = np.empty(u.size)
+    for i in range(u.size):
+        out[i] = _profile(u_m, b, u[i])[0]
+    return out
 
 
 @nb.njit(cache=True, inline="always")
@@ -373,10 +380,15 @@ class Bev:
         self.height_m = float(height_m)
         # image (undistorted pixel) from BEV pixel: K R_cp_from_o M  (Damon et al. 2018, eq. (5)).
         self.image_from_bev = camera.K @ self.R_o_from_cp.T @ grid.M_h(self.height_m)
-        self.bev_from_image = np.linalg.inv(self.image_from_bev)
         self.f_vx, self.f_vy = grid.f_v(self.height_m)
         self.u0 = grid.y_max_m / grid.dy_m
         self.v0 = grid.x_max_m / grid.dx_m
+
+    @property
+    def bev_from_image(self) -> np.ndarray:
+        """BEV pixel from image (undistorted) pixel, the inverse of ``image_from_bev``: computed
+        when asked (the estimator never does; it was a 3x3 inverse every warp)."""
+        return np.linalg.inv(self.image_from_bev)
 
     # ---- coordinates ----
 

@@ -106,7 +106,7 @@ class LaneModel:
     def sigma_dzeta(self) -> float:
         """1-sigma of ``dzeta``, 1/m (0 without the column)."""
         i = self.i_dzeta
-        return float(np.sqrt(max(self.cov[i, i], 0.0))) if i >= 0 else 0.0
+        return math.sqrt(max(float(self.cov[i, i]), 0.0)) if i >= 0 else 0.0
 
     def with_dzeta_prior(self, dzeta_1_m: float, sigma_1_m: float) -> "LaneModel":
         """The model updated with the prior ``dzeta ~ N(dzeta_1_m, sigma_1_m^2)`` (a scalar
@@ -271,7 +271,7 @@ class LaneModel:
 
     def sigma_b(self, j: int) -> float:
         i = self.n_edges + j
-        return float(np.sqrt(max(self.cov[i, i], 0.0)))
+        return math.sqrt(max(float(self.cov[i, i]), 0.0))      # np.sqrt's value, without its dispatch
 
 
 @nb.njit(cache=True)
@@ -400,7 +400,7 @@ def fit_lane_model_points(x: np.ndarray, y: np.ndarray, counts: np.ndarray, edge
     full = m
     while m.c.size >= 1:
         i = m.a.size + m.b.size + m.c.size - 1
-        if abs(m.c[-1]) > t_min * np.sqrt(max(m.cov[i, i], 0.0)):
+        if abs(m.c[-1]) > t_min * math.sqrt(max(float(m.cov[i, i]), 0.0)):
             break
         m = _fit(pts, m.c.size, rows_per_m)
     # A curve keeps its full shape: the rate of change of curvature (clothoid) is rarely
@@ -461,7 +461,7 @@ def _fit(pts: _Points, shape_degree: int, rows_per_m: float) -> LaneModel:
     if not ok:
         raise VisionError("lane model is singular (an edge without points?)")
     m = LaneModel(p[:K], p[K:K + J], p[K + J:K + J + nc], cov, pts.edge_line, pts.edge_side, pts.x_min.copy(),
-                  pts.x_max.copy(), float(np.sqrt(s2)), int(pts.x.size), scale,
+                  pts.x_max.copy(), math.sqrt(s2), int(pts.x.size), scale,
                   float(p[K + J + nc]) if nz else 0.0, pts.sag)
     m.linear = (pts.x, pts.y, pts.k_of, w, zc, Ai, nz)
     return m

@@ -70,7 +70,7 @@ def vp_from_r3(K, r3) -> np.ndarray:
 def yaw_pitch_from_r3(r3) -> tuple[float, float]:
     """``(psi1, theta1)``: XYZ yaw and pitch of ``cs`` relative to the road, rad (eq. (20))."""
     r = np.asarray(r3, dtype=float)
-    return float(np.arctan2(r[0], r[2])), float(-np.arcsin(np.clip(r[1], -1.0, 1.0)))
+    return float(np.arctan2(r[0], r[2])), float(-np.arcsin(min(max(r[1], -1.0), 1.0)))     # np.clip of a number
 
 
 def r3_from_yaw_pitch(psi1_rad: float, theta1_rad: float) -> np.ndarray:
