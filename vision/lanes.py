@@ -435,6 +435,32 @@ def _measure_rows(bev, binary, rows, centers, lo, hi, half, wpx, mode):  # pragm
 _MODES = {"binary": 0, "subpixel": 1, "area": 2}
 
 
+@nb.njit(cache=True)
+def _follow_line(bev, binary, start, n_windows, half_window, min_pix, half_win_rows, c_lo, c_hi, lo, hi, half, wpx,
+                 mode, min_rows):  # pragma: no cover (numba)
+    """One line from its start column: the sliding windows (:func:`_track`), the centre line
+    through them (degree 2 from four windows, else 1) on every row they span, ``half_win_rows``
+    beyond the end windows, within the columns ``(c_lo, c_hi)``, and both edges on those rows
+    (:func:`_edges_on_rows`). ``(ok, rows, ul, ur, contrast, good)``, ``good`` where both edges
+    were found; not ``ok`` with fewer than two windows or ``min_rows`` rows."""
+    wv, wu = _track_nb(binary, start, n_windows, half_window, min_pix)
+    nothing = (False, np.empty(0, np.int64), np.empty(0), np.empty(0), np.empty(0), np.empty(0, np.bool_))
+    if wv.size < 2:
+        return nothing
+    deg = 1 if wv.size < 4 else 2
+    cfit, _ = _polyfit_nb(wv, wu, deg)
+    v_lo = max(0, int(wv.min() - half_win_rows))
+    v_hi = min(binary.shape[0] - 1, int(wv.max() + half_win_rows))
+    rows, centers = _centre_rows(cfit, v_lo, v_hi, c_lo, c_hi)
+    if rows.size < min_rows:
+        return nothing
+    ul, ur, contrast = _measure_rows(bev, binary, rows, centers, lo, hi, half, wpx, mode)
+    good = np.isfinite(ul) & np.isfinite(ur)
+    if good.sum() < min_rows:
+        return nothing
+    return True, rows, ul, ur, contrast, good
+
+
 def _edges_on_rows(bev: np.ndarray, binary: np.ndarray, rows: np.ndarray, centers: np.ndarray,
                    half: int, wpx: float, mode: str, valid):
     """Both edges of the marker near ``centers`` on each row; NaN where not found.
@@ -494,6 +520,28 @@ def _robust_fit(v: np.ndarray, u: np.ndarray, deg: int, v0: float):
     (coefficients highest power first, in ``(v - v0) / 100``)."""
     deg = min(deg, max(0, v.size - 2))
     return _robust_fit_nb(v.astype(np.float64), u.astype(np.float64), deg, float(v0))
+
+
+@nb.njit(cache=True)
+def _robust_fit_pair(v, ul, ur, deg, v0):  # pragma: no cover (numba)
+    """:func:`_robust_fit` of a marker's left and right edges (``deg`` already capped) in one call."""
+    fl, rl, kl = _robust_fit_nb(v, ul, deg, v0)
+    fr, rr, kr = _robust_fit_nb(v, ur, deg, v0)
+    return fl, rl, kl, fr, rr, kr
+
+
+@nb.njit(cache=True)
+def _plausible_rows(ul, ur, contrast, good, wpx, min_rows):  # pragma: no cover (numba)
+    """The rows of ``good`` whose marker is 0.4 to 2.5 widths (+2 px) wide and has at least 0.6
+    of the median contrast of those: ``(ok, rows kept, median contrast)``, not ``ok`` when fewer
+    than ``min_rows`` are left at either step."""
+    width = ur - ul
+    good = good & (width > 0.4 * wpx) & (width < 2.5 * wpx + 2)
+    if good.sum() < min_rows:
+        return False, good, np.nan
+    c_med = np.median(contrast[good])
+    good &= contrast > 0.6 * c_med
+    return good.sum() >= min_rows, good, c_med
 
 
 @nb.njit(cache=True)
@@ -558,23 +606,14 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
     half = max(4, int(round(1.6 * wpx)) + 2)
     found = []
     for s in starts:
-        wv, wu = _track(binary, s, opx)
-        if wv.size < 2:
-            continue
-        # Centre line through the windows, evaluated on every row they span.
-        deg = 1 if wv.size < 4 else 2
-        cfit, _ = _polyfit_nb(wv, wu, deg)
-        v_lo = max(0, int(wv.min() - Hh / opts.n_windows / 2))
-        v_hi = min(Hh - 1, int(wv.max() + Hh / opts.n_windows / 2))
-        rows, centers = _centre_rows(cfit, v_lo, v_hi, 2 * wpx, W - 1 - 2 * wpx)
-        if rows.size < min_rows:
-            continue
-        ul, ur, contrast = _edges_on_rows(bev, binary, rows, centers, half, wpx, opts.edges,
-                                          (valid_lo, valid_hi))
-        good = np.isfinite(ul) & np.isfinite(ur)
-        if good.sum() < min_rows:
-            continue
-        found.append((rows, ul, ur, contrast, good, centers))
+        # _track, the centre line through its windows on every row they span, _edges_on_rows
+        # there, in one compiled call (a dozen numpy calls and conversions per line before)
+        ok, rows, ul, ur, contrast, good = _follow_line(
+            bev, binary, float(s), int(opx["n_windows"]), int(opx["half_window"]), float(opx["min_pix"]),
+            Hh / opts.n_windows / 2, 2 * wpx, W - 1 - 2 * wpx, lo64, hi64, int(half), float(wpx), _MODES[opts.edges],
+            min_rows)
+        if ok:
+            found.append((rows, ul, ur, contrast, good))
     if opts.edges == "area" and found:
         # One paint contrast for all markers (the best resolved one's), so that the widths keep
         # their ratio (eq. (8) needs only the ratio).
@@ -583,19 +622,14 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
             cen, hw = 0.5 * (f[1] + f[2]), 0.5 * (f[2] - f[1]) / max(c_all, 1e-6)
             f[1][:], f[2][:] = cen - hw, cen + hw
     markers: list[Marker] = []
-    for rows, ul, ur, contrast, good, _ in found:
-        width = ur - ul
-        good = good & (width > 0.4 * wpx) & (width < 2.5 * wpx + 2)
-        if good.sum() < min_rows:
+    for rows, ul, ur, contrast, good in found:
+        ok, good, c_med = _plausible_rows(ul, ur, contrast, good, float(wpx), min_rows)
+        if not ok:
             continue
-        c_med = _median(contrast[good])
-        good &= contrast > 0.6 * c_med
-        if good.sum() < min_rows:
-            continue
-        m = Marker(rows[good].astype(float), ul[good], ur[good], c_med)
+        m = Marker(rows[good].astype(float), ul[good], ur[good], float(c_med))
         m.v0 = float(np.add.reduce(m.v) / m.v.size)       # m.v.mean() without its dispatch
-        fl, rl, kl = _robust_fit(m.v, m.u_left, opts.fit_degree, m.v0)
-        fr, rr, kr = _robust_fit(m.v, m.u_right, opts.fit_degree, m.v0)
+        fl, rl, kl, fr, rr, kr = _robust_fit_pair(m.v, m.u_left, m.u_right, min(opts.fit_degree, max(0, m.v.size - 2)),
+                                                  m.v0)
         m.fit_left, m.fit_right, m.rms_left, m.rms_right = fl, fr, rl, rr
         m.inliers = kl & kr
         if m.inliers.sum() < min_rows:
