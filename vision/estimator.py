@@ -1325,11 +1325,17 @@ def _direction_rows(model: LaneModel, H: float, x0: float, R) -> np.ndarray:
         M[2 * n], vals[2 * n] = rows_j[0], y_j[0]
         M[2 * n + 1] = model.slope_row(j, x0)
         vals[2 * n + 1] = float(model.slope(j, x0))
-    e = np.array([1e-4, 1e-6, 1e-4, 1e-6])               # m, rad
-    D = np.concatenate([np.diag(e), -np.diag(e)]) + vals     # (8, 4)
+    D = _DIR_STEPS + vals                                     # (8, 4)
     yp = _yaw_pitch_two_lines(D, H, x0, R)                   # (8, 2): psi, theta
-    J_yp = ((yp[:4] - yp[4:]) / (2.0 * e[:, None])).T        # (2, 4)
+    J_yp = ((yp[:4] - yp[4:]) / _DIR_SPANS).T                # (2, 4)
     return J_yp @ M
+
+
+#: :func:`_direction_rows`' steps in ``(y_L, b_L, y_R, b_R)`` (m, rad): the rows of ``+e`` then
+#: ``-e``, and the central differences' spans ``2 e`` (constants, made once).
+_DIR_STEP = np.array([1e-4, 1e-6, 1e-4, 1e-6])
+_DIR_STEPS = np.concatenate([np.diag(_DIR_STEP), -np.diag(_DIR_STEP)])
+_DIR_SPANS = 2.0 * _DIR_STEP[:, None]
 
 
 def _roll_rows(model: LaneModel, xs, use_eq10: bool, ratio: float, heights, x0: float):

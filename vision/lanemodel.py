@@ -120,7 +120,7 @@ class LaneModel:
         g = Ce / s
         p = np.concatenate([self.a, self.b, self.c, [self.dzeta]])
         p = p + g * (dzeta_1_m - self.dzeta)
-        cov = self.cov - np.outer(g, Ce)
+        cov = self.cov - g[:, None] * Ce[None, :]        # np.outer(g, Ce), as it computes it
         K, J, nc = self.a.size, self.b.size, self.c.size
         out = object.__new__(LaneModel)          # a copy with new parameters (no __init__: 1670 a second)
         out.__dict__.update(self.__dict__)
@@ -822,6 +822,6 @@ def lane_direction(model: LaneModel, height_m: float, lines=None, x0_m: float = 
         d = vt[-1]
     if d[0] < 0:
         d = -d
-    if not np.all(np.isfinite(d)) or d[0] < 0.5:
+    if not (math.isfinite(d[0]) and math.isfinite(d[1]) and math.isfinite(d[2])) or d[0] < 0.5:
         return None
     return d

@@ -114,9 +114,10 @@ def solve_numeric(alphas_rad, coef, seed_rad: float = 0.0, *, span_rad: float = 
     """
     a = np.ascontiguousarray(np.atleast_2d(np.asarray(alphas_rad, dtype=float)))
     c = np.ascontiguousarray(np.asarray(coef, dtype=float))
-    if not np.all(np.isfinite(a)):
+    finite, a_max, a_min = _finite_max_min(a)       # np.isfinite(a).all(), a.max(), a.min() in one call
+    if not finite:
         raise VisionError("roll: non-finite edge angles")
-    lo_dom, hi_dom = _domain(a)
+    lo_dom, hi_dom = (a_max - HALF_PI, a_min + HALF_PI) if a.size else _domain(a)    # (empty: numpy's error)
     eps = 1e-9
     lo_dom, hi_dom = lo_dom + eps, hi_dom - eps
     if not lo_dom < hi_dom:
@@ -126,6 +127,20 @@ def solve_numeric(alphas_rad, coef, seed_rad: float = 0.0, *, span_rad: float = 
     if not ok:
         raise VisionError("roll: the width equation has no root (markers not seen as a pair)")
     return phi
+
+
+@nb.njit(cache=True)
+def _finite_max_min(a):  # pragma: no cover (numba)
+    """Whether all of ``a`` (2-D) is finite, and its maximum and minimum (when it is)."""
+    hi, lo = -np.inf, np.inf
+    for r in range(a.shape[0]):
+        for k in range(a.shape[1]):
+            v = a[r, k]
+            if not math.isfinite(v):
+                return False, np.nan, np.nan
+            hi = max(hi, v)
+            lo = min(lo, v)
+    return True, hi, lo
 
 
 #: Brent's relative tolerance, as SciPy's ``brentq`` defaults it.
