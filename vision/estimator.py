@@ -714,7 +714,8 @@ class Estimator:
             for m in lines:
                 k = m.inliers
                 us += [m.u_left[k], m.u_right[k]]
-                vs_ += [m.v[k], m.v[k]]
+                v_k = m.v[k]
+                vs_ += [v_k, v_k]
             rays = bev.rays_of_bev(np.concatenate(us), np.concatenate(vs_))
             ends = np.cumsum([0] + [u.size for u in us])
             for i in range(len(us)):
@@ -819,7 +820,9 @@ class Estimator:
                 dbg.cross_rows_v = bev.grid.row_of_x(x_rows)
 
         # ---- outputs ----
-        (roll, pitch, yaw), R_o_from_v = vehicle_from_camera_xyz(phi, theta, psi, self.mount.tilt_rad)
+        # vehicle_from_camera_xyz: R_o_from_v as height_of has it (the same product, often made already)
+        _, R_o_from_v = self.height_of(phi, theta, psi)
+        roll, pitch, yaw = (float(a) for a in rpy_from_R(R_o_from_v))
         cam_off = _camera_offset(R_o_from_v, self.mount)
         H = float(cam_off[2])
         x_c = -float(cam_off[0])
