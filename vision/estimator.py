@@ -509,9 +509,9 @@ class Estimator:
         extent = np.empty(len(markers))
         for i, m in enumerate(markers):
             v_near = m.v_near           # a property: the inliers' maximum each time
-            x_near = float(g.x_of_row(v_near))
+            x_near = float(g.x_max_m - v_near * g.dx_m)                 # g.x_of_row, of a number
             ul, ur = m.u_at(v_near)
-            y0[i] = float(g.y_of_col(0.5 * (ul[0] + ur[0]))) - 0.5 * curvature_1_m * x_near**2
+            y0[i] = float(g.y_max_m - 0.5 * (ul[0] + ur[0]) * g.dy_m) - 0.5 * curvature_1_m * x_near**2   # g.y_of_col
             extent[i] = v_near - m.v_far
         cand: list[int] = []
         for i in np.argsort(-y0):                      # left to right
