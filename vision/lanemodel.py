@@ -115,12 +115,8 @@ class LaneModel:
         i = self.i_dzeta
         if i < 0 or not math.isfinite(sigma_1_m) or sigma_1_m <= 0:
             return self
-        Ce = self.cov[:, i]
-        s = float(Ce[i]) + sigma_1_m**2
-        g = Ce / s
-        p = np.concatenate([self.a, self.b, self.c, [self.dzeta]])
-        p = p + g * (dzeta_1_m - self.dzeta)
-        cov = self.cov - g[:, None] * Ce[None, :]        # np.outer(g, Ce), as it computes it
+        p, cov, g = _dzeta_update(self.cov, self.a, self.b, self.c, float(self.dzeta), i, float(dzeta_1_m),
+                                  float(sigma_1_m**2))
         K, J, nc = self.a.size, self.b.size, self.c.size
         out = object.__new__(LaneModel)          # a copy with new parameters (no __init__: 1670 a second)
         out.__dict__.update(self.__dict__)
@@ -194,16 +190,8 @@ class LaneModel:
 
     def y_edges(self, ks, x) -> np.ndarray:
         """Lateral positions ``(len(ks), len(x))`` of edges ``ks`` at ``x``, m."""
-        x = np.asarray(x, float)
-        ks = np.asarray(ks)
-        j = self.edge_line[ks]
-        t = x / _XS
-        shape = np.zeros_like(t)
-        tp = t * t
-        for ci in self.c:
-            shape = shape + ci * tp
-            tp = tp * t
-        return self.a[ks][:, None] + self.b[j][:, None] * x[None, :] + self.line_scale[j][:, None] * shape[None, :]
+        return _y_edges(self.a, self.b, self.c, self.line_scale, self.edge_line, np.asarray(ks, np.int64).reshape(-1),
+                        np.ascontiguousarray(x, np.float64).reshape(-1))
 
     def y(self, k: int, x, shape=None):
         """Lateral position of edge ``k`` at ``x``, m (``shape``: :meth:`_shape` at ``x``, when the
@@ -333,6 +321,81 @@ def _line_at(a, b, c, line_scale, edge_line, j, x):  # pragma: no cover (numba)
             y += a[k]
             n += 1
     return y / n + b[j] * x + s * shape, b[j] + s * dshape
+
+
+@nb.njit(cache=True)
+def _direction_of_two(a, b, c, line_scale, edge_line, cov, j0, j1, H, x0):  # pragma: no cover (numba)
+    """:func:`lane_direction` of two lines, the same operations on numbers: ``(ok, d)``."""
+    K = a.size
+    rows = np.empty((2, 3))
+    for q in range(2):
+        j = j0 if q == 0 else j1
+        yj, bj = _line_at(a, b, c, line_scale, edge_line, j, x0)
+        n0, n1, n2 = H * bj, -H, x0 * bj - yj
+        cjj = cov[K + j, K + j]
+        sb = math.sqrt(0.0 if 0.0 > cjj else cjj)           # LaneModel.sigma_b (max as Python's)
+        w = 1.0 / (math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) * (1e-9 if 1e-9 > sb else sb))
+        rows[q, 0], rows[q, 1], rows[q, 2] = n0 * w, n1 * w, n2 * w
+    d = np.empty(3)
+    d[0] = rows[0, 1] * rows[1, 2] - rows[0, 2] * rows[1, 1]
+    d[1] = rows[0, 2] * rows[1, 0] - rows[0, 0] * rows[1, 2]
+    d[2] = rows[0, 0] * rows[1, 1] - rows[0, 1] * rows[1, 0]
+    nd = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    if nd == 0:
+        return False, d
+    d = d / nd
+    if d[0] < 0:
+        d = -d
+    if not (math.isfinite(d[0]) and math.isfinite(d[1]) and math.isfinite(d[2])) or d[0] < 0.5:
+        return False, d
+    return True, d
+
+
+@nb.njit(cache=True)
+def _y_edges(a, b, c, line_scale, edge_line, ks, x):  # pragma: no cover (numba)
+    """:meth:`LaneModel.y_edges`: numpy's array operations point by point, in numpy's order
+    (one call instead of a dozen on arrays of a few cross-sections)."""
+    shape = np.empty(x.size)
+    for r in range(x.size):
+        t = x[r] / _XS
+        sh = 0.0
+        tp = t * t
+        for ci in c:
+            sh = sh + ci * tp
+            tp = tp * t
+        shape[r] = sh
+    out = np.empty((ks.size, x.size))
+    for q in range(ks.size):
+        k = ks[q]
+        j = edge_line[k]
+        for r in range(x.size):
+            out[q, r] = a[k] + b[j] * x[r] + line_scale[j] * shape[r]
+    return out
+
+
+@nb.njit(cache=True)
+def _dzeta_update(cov, a, b, c, dzeta, i, dzeta_prior, var_prior):  # pragma: no cover (numba)
+    """The scalar Kalman update of :meth:`LaneModel.with_dzeta_prior`: ``(parameters, cov, gain)``,
+    numpy's array operations element by element (``Ce / s``, ``p + g (d - dzeta)``,
+    ``cov - outer(g, Ce)``)."""
+    n = cov.shape[0]
+    Ce = cov[:, i].copy()
+    s = Ce[i] + var_prior
+    g = Ce / s
+    step = dzeta_prior - dzeta
+    K, J, nc = a.size, b.size, c.size
+    p = np.empty(n)
+    p[:K] = a
+    p[K:K + J] = b
+    p[K + J:K + J + nc] = c
+    p[K + J + nc] = dzeta
+    for r in range(n):
+        p[r] = p[r] + g[r] * step
+    out = np.empty((n, n))
+    for r in range(n):
+        for q in range(n):
+            out[r, q] = cov[r, q] - g[r] * Ce[q]
+    return p, out, g
 
 
 def sag_weight(x, height_m: float, x0_m: float, zeta_1_m: float):
@@ -801,8 +864,12 @@ def lane_direction(model: LaneModel, height_m: float, lines=None, x0_m: float = 
     """
     J = model.n_lines
     lines = range(J) if lines is None else lines
-    rows = []
     x0_m = float(x0_m)
+    if len(lines) == 2:
+        ok, d = _direction_of_two(model.a, model.b, model.c, model.line_scale, model.edge_line, model.cov,
+                                  int(lines[0]), int(lines[1]), float(height_m), x0_m)
+        return d if ok else None
+    rows = []
     for j in lines:
         yj, bj = _line_at(model.a, model.b, model.c, model.line_scale, model.edge_line, int(j), x0_m)
         n = (height_m * bj, -height_m, x0_m * bj - yj)
