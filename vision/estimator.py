@@ -60,6 +60,7 @@ the one at the cross-sections. Measured through the fusion: ``README``, "Fusion"
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -391,6 +392,7 @@ class Estimator:
         self._last_call_valid = False
         self._R_cs_from_v = Ry(mount.tilt_rad).T
         self._height_memo: dict = {}
+        self._position_v = mount.position_v      # a property that builds the array each time
         self.twist_map = TwistMap()
         self._map_active = False
         self._twist_probe: np.ndarray | None = None     # where _twist_ahead looks (fixed per object)
@@ -563,11 +565,16 @@ class Estimator:
 
     def height_of(self, phi1, theta1, psi1) -> tuple[float, np.ndarray]:
         """Camera height above the road (m) and ``R_o_from_v`` for the camera's XYZ angles."""
+        hit = self._pose_terms(phi1, theta1, psi1)
+        return hit[0], hit[1]
+
+    def _pose_terms(self, phi1, theta1, psi1) -> tuple[float, np.ndarray, float]:
+        """``(H, R_o_from_v, x0)`` of :meth:`height_of` and :meth:`surface_of`, memoised."""
         key = (float(phi1), float(theta1), float(psi1))
         hit = self._height_memo.get(key)
         if hit is None:
             R_o_from_v = matrix_from_euler("xyz", *key) @ self._R_cs_from_v
-            hit = (float(R_o_from_v[2] @ self.mount.position_v), R_o_from_v)
+            hit = (float(R_o_from_v[2] @ self._position_v), R_o_from_v, -float(R_o_from_v[0] @ self._position_v))
             if len(self._height_memo) > 64:
                 self._height_memo.clear()
             self._height_memo[key] = hit
@@ -576,8 +583,8 @@ class Estimator:
     def surface_of(self, phi1, theta1, psi1) -> tuple[float, float]:
         """Camera height above the road's tangent plane at the contact point, and the contact
         point's distance ahead of the camera's nadir (m), for the camera's XYZ angles."""
-        H, R_o_from_v = self.height_of(phi1, theta1, psi1)
-        return H, -float(R_o_from_v[0] @ self.mount.position_v)
+        hit = self._pose_terms(phi1, theta1, psi1)
+        return hit[0], hit[2]
 
     def _alrazouk(self, gray, seed_rpy, keep_debug, seed_est: "VisionEstimate | None" = None) -> VisionEstimate:
         pose = self._initial_pose(seed_rpy)
@@ -717,7 +724,7 @@ class Estimator:
                 v_k = m.v[k]
                 vs_ += [v_k, v_k]
             rays = bev.rays_of_bev(np.concatenate(us), np.concatenate(vs_))
-            ends = np.cumsum([0] + [u.size for u in us])
+            ends = list(itertools.accumulate([u.size for u in us], initial=0))     # np.cumsum's integers
             for i in range(len(us)):
                 edges.append(_Edge(rays[ends[i]:ends[i + 1]], i // 2, i % 2, False))
         else:
@@ -845,9 +852,10 @@ class Estimator:
                        for j in range(n_lines)]
         centres = [all_centres[0], all_centres[-1]]
         offsets = tuple(c + float(cam_off[1]) for c in all_centres)
-        curvature = float(_mean_rows([model.curvature(j, x_c) for j in (0, n_lines - 1)])) if model.c.size else 0.0
-        # the curvature's first-order row, for its sigma and the twist response
-        curvature_row = _mean_rows([model.curvature_row(j, x_c) for j in (0, n_lines - 1)]) if model.c.size else None
+        # the outer lines' curvature and its first-order row (for its sigma and the twist response)
+        curv = [model.curvature_and_row(j, x_c) for j in (0, n_lines - 1)] if model.c.size else None
+        curvature = float(_mean_rows([k for k, _ in curv])) if curv else 0.0
+        curvature_row = _mean_rows([r for _, r in curv]) if curv else None
         curvature_sigma = self._curvature_sigma(model, curvature, curvature_row)
         x_mean = float(_mean(x_rows))
         lookahead = x_mean - x_c

@@ -239,6 +239,20 @@ class LaneModel:
             R[K + J + i] = self.line_scale[j] * p * t ** (p - 1) / _XS
         return R
 
+    def curvature_and_row(self, j: int, x: float) -> tuple[float, np.ndarray]:
+        """:meth:`curvature` and :meth:`curvature_row` of line ``j`` at ``x``, the slope they share
+        computed once."""
+        K, J = self.n_edges, self.n_lines
+        s1 = float(self.slope(j, x))
+        kappa = self.line_scale[j] * float(self._shape_d(x, 2)) / (1.0 + s1 * s1) ** 1.5
+        R = np.zeros(self.cov.shape[0])
+        t = float(x) / _XS
+        g = self.line_scale[j] / (1.0 + s1 * s1) ** 1.5
+        for i in range(self.c.size):
+            p = i + 2
+            R[K + J + i] = g * p * (p - 1) * t ** (p - 2) / _XS**2
+        return kappa, R
+
     def curvature_row(self, j: int, x: float) -> np.ndarray:
         """Derivatives of ``curvature(j, x)`` (to first order in the slope) with respect to the
         parameters."""
