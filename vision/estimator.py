@@ -727,6 +727,7 @@ class Estimator:
             ends = list(itertools.accumulate([u.size for u in us], initial=0))     # np.cumsum's integers
             for i in range(len(us)):
                 edges.append(_Edge(rays[ends[i]:ends[i + 1]], i // 2, i % 2, False))
+            _stack_edges(edges, rays)        # the lane model's stack is these rays, as they are
         else:
             for j, ie in enumerate(image_edges):
                 for side, uv in ((0, ie.left), (1, ie.right)):
@@ -1003,7 +1004,7 @@ class Estimator:
         ``zeta`` (not None), onto the surface of that vertical curvature, fitting its correction
         with the prior ``zeta_prior = (mean, sigma)`` (1/m); with ``twist``, onto the road turning
         about its centre line (:mod:`vision.twistmap`)."""
-        rays, bounds, steps = _stack_edges(edges)
+        rays, bounds, steps, edge_lines, edge_sides = _stack_edges(edges)
         z = 0.0 if zeta is None else zeta
         x, y = ground_from_rays(rays, R, H, z, x0, twist)
         from_image = edges[0].from_image
@@ -1019,7 +1020,7 @@ class Estimator:
         # BEV rows far away re-sample image rows (f_y H / x^2 rows per metre against 1 / dx);
         # cuts in the image are one per image row or column.
         independent = math.inf if from_image else self.camera.fy * H * grid.dx_m
-        model = fit_lane_model_points(x[ok], y[ok], counts, [e.line for e in edges], [e.side for e in edges], deg,
+        model = fit_lane_model_points(x[ok], y[ok], counts, edge_lines, edge_sides, deg,
                                       independent, q=q_all[ok] if from_image else None, select=select,
                                       sag=None if zeta is None else (H, x0, z))
         if zeta is not None:
@@ -1207,18 +1208,23 @@ def _mean_rows(rows: list):
 _STACK_CACHE: dict = {}
 
 
-def _stack_edges(edges: list[_Edge]):
-    """All edges' rays in one array, the bounds of each, and the cut steps (cached per list)."""
+def _stack_edges(edges: list[_Edge], rays: np.ndarray | None = None):
+    """All edges' rays in one array, the bounds of each, the cut steps, and each edge's line and
+    side (cached per list). ``rays``: the edges' rays already in one array, edge after edge (the
+    caller's, when it sliced the edges from it: no copy)."""
     key = id(edges)
     hit = _STACK_CACHE.get(key)
     if hit is not None and hit[0] is edges:
         return hit[1]
-    rays = np.concatenate([e.rays for e in edges])
+    if rays is None:
+        rays = np.concatenate([e.rays for e in edges])
     bounds = np.cumsum([0] + [e.rays.shape[0] for e in edges])
     steps = np.concatenate([e.cut_step for e in edges]) if edges[0].from_image else None
+    lines = np.array([e.line for e in edges], np.int64)
+    sides = np.array([e.side for e in edges], np.int64)
     _STACK_CACHE.clear()
-    _STACK_CACHE[key] = (edges, (rays, bounds, steps))
-    return rays, bounds, steps
+    _STACK_CACHE[key] = (edges, (rays, bounds, steps, lines, sides))
+    return rays, bounds, steps, lines, sides
 
 
 @nb.njit(cache=True)
