@@ -649,7 +649,7 @@ class Estimator:
         o = self.options
         want_three = self.road.center_line and o.roll_equation in ("auto", "eq10")
         warps = 0
-        result = VisionEstimate.invalid("no lane markers found", o.method)
+        result = None          # (an invalid estimate made only if no warp ran: 8 us a frame)
         # the road's twist the frames before measured, when a runoff is ahead: the view and the
         # projection of this frame are then onto the twisted road
         tw0 = self._twist_ahead(np.asarray(twist0, float)) if self._map_active and twist0 else None
@@ -679,7 +679,7 @@ class Estimator:
             if math.degrees(max(abs(a - b) for a, b in zip(new, pose))) <= o.rewarp_deg:
                 break
             pose = new
-        return result
+        return result if result is not None else VisionEstimate.invalid("no lane markers found", o.method)
 
     def _coarse_pose(self, gray):
         """Camera pose from a wide, coarse BEV tried at leans of 0, -+15, -+30, -+45 deg: for frames

@@ -523,6 +523,23 @@ def _robust_fit(v: np.ndarray, u: np.ndarray, deg: int, v0: float):
 
 
 @nb.njit(cache=True)
+def _median_where(a, keep):  # pragma: no cover (numba)
+    """:func:`_median` of ``a[keep]`` (``keep`` not empty)."""
+    return np.median(a[keep])
+
+
+@nb.njit(cache=True)
+def _area_edges(ul, ur, contrast):  # pragma: no cover (numba)
+    """In place, the edges ``centre -+ area / 2`` of the area measurement divided by the paint
+    ``contrast`` (numpy's ``0.5 (ul + ur)``, ``0.5 (ur - ul) / contrast`` element by element)."""
+    for i in range(ul.size):
+        cen = 0.5 * (ul[i] + ur[i])
+        hw = 0.5 * (ur[i] - ul[i]) / contrast
+        ul[i] = cen - hw
+        ur[i] = cen + hw
+
+
+@nb.njit(cache=True)
 def _robust_fit_pair(v, ul, ur, deg, v0):  # pragma: no cover (numba)
     """:func:`_robust_fit` of a marker's left and right edges (``deg`` already capped) in one call."""
     fl, rl, kl = _robust_fit_nb(v, ul, deg, v0)
@@ -617,10 +634,9 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
     if opts.edges == "area" and found:
         # One paint contrast for all markers (the best resolved one's), so that the widths keep
         # their ratio (eq. (8) needs only the ratio).
-        c_all = max(_median(f[3][f[4]]) for f in found)
+        c_all = max(float(_median_where(f[3], f[4])) for f in found)
         for f in found:
-            cen, hw = 0.5 * (f[1] + f[2]), 0.5 * (f[2] - f[1]) / max(c_all, 1e-6)
-            f[1][:], f[2][:] = cen - hw, cen + hw
+            _area_edges(f[1], f[2], max(c_all, 1e-6))
     markers: list[Marker] = []
     for rows, ul, ur, contrast, good in found:
         ok, good, c_med = _plausible_rows(ul, ur, contrast, good, float(wpx), min_rows)
@@ -632,7 +648,7 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
                                                   m.v0)
         m.fit_left, m.fit_right, m.rms_left, m.rms_right = fl, fr, rl, rr
         m.inliers = kl & kr
-        if m.inliers.sum() < min_rows:
+        if np.count_nonzero(m.inliers) < min_rows:
             continue
         markers.append(m)
     # Merge duplicates (two starts tracking the same line).
