@@ -107,11 +107,11 @@ def main(argv: list[str] | None = None) -> int:
             cam.join(timeout=5)
     args.out.mkdir(parents=True, exist_ok=True)
     write_calibration(live.calibration(), args.out / "calibration.toml", "tools/embed_example.py (LiveFusion)")
+    # what the process took at most: the embedding's footprint (Linux reports kB)
+    print(f"peak resident memory of this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
     print(f"{live.samples} IMU samples, vision used {live.stream.counts['vision_used']} times "
           f"({live.stream.counts['vision_late']} late), warnings: {live.warnings or 'none'}; "
           f"wrote {args.out / 'calibration.toml'}")
-    # what the process took at most: the embedding's footprint (Linux reports kB)
-    print(f"peak resident memory of this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
     return 0
 
 
