@@ -656,12 +656,7 @@ def _normal_equations(t, y, w, zc, k_of, edge_line, scale, K, J, nc, nz, A, rhs)
         k = k_of[i]
         j = edge_line[k]
         sj = scale[j]
-        idx[0] = k
-        idx[1] = K + j
-        for c in range(nc):
-            idx[2 + c] = K + J + c
-        if nz:
-            idx[m - 1] = K + J + nc
+        _block_index(idx, k, j, K, J, nc, nz)
         s00 = s01 = s02 = s03 = s04 = s11 = s12 = s13 = s14 = s22 = s23 = s24 = s33 = s34 = s44 = 0.0
         r0 = r1 = r2 = r3 = r4 = 0.0
         while i < n and k_of[i] == k:
@@ -715,6 +710,18 @@ def _normal_equations(t, y, w, zc, k_of, edge_line, scale, K, J, nc, nz, A, rhs)
                 A[idx[u], idx[v]] += S[slot[u], slot[v]]
 
 
+@nb.njit(cache=True, inline="always")
+def _block_index(idx, k, j, K, J, nc, nz):  # pragma: no cover (numba)
+    """The unknowns of one edge's block of the normal equations: its offset ``k``, its line's
+    ``K + j``, the shape columns, the vertical curvature's last."""
+    idx[0] = k
+    idx[1] = K + j
+    for c in range(nc):
+        idx[2 + c] = K + J + c
+    if nz:
+        idx[idx.size - 1] = K + J + nc
+
+
 @nb.njit(cache=True)
 def _normal_equations_any(t, y, w, zc, k_of, edge_line, scale, K, J, nc, nz, A, rhs, idx):  # pragma: no cover (numba)
     """:func:`_normal_equations` for any number of shape columns, the block in an array."""
@@ -728,12 +735,7 @@ def _normal_equations_any(t, y, w, zc, k_of, edge_line, scale, K, J, nc, nz, A, 
         k = k_of[i]
         j = edge_line[k]
         sj = scale[j]
-        idx[0] = k
-        idx[1] = K + j
-        for c in range(nc):
-            idx[2 + c] = K + J + c
-        if nz:
-            idx[m - 1] = K + J + nc
+        _block_index(idx, k, j, K, J, nc, nz)
         Ab[:, :] = 0.0
         rb[:] = 0.0
         col[0] = 1.0
