@@ -703,7 +703,7 @@ def test_a_lever_arm_in_millimetres_and_a_spaced_header(copy, tmp_path):
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "position_m", "metres")
 
 
-def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch, capsys):
+def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch, capsys, tmp_path):
     """Ctrl-C inside numba's compiler comes out as RuntimeError ("no compiled object yet"), in a
     vision worker as SystemError: a review got those tracebacks on 2 of 21 interrupts. Any
     error after this process got SIGINT is the interrupt (exit 130, one line); the same error
@@ -744,6 +744,22 @@ def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch
     monkeypatch.setattr(run_cmd, "run", interrupted_in_a_finalizer)
     assert main(["run"]) == 130
     assert capsys.readouterr().err == "error: interrupted\n"     # no "Exception ignored" traceback
+
+    # in a campaign, an interrupt that surfaces as a user error (an OSError) ends the campaign:
+    # it was a skipped drive, and the next drive ran
+    ran = []
+
+    def os_error_interrupted(args):
+        ran.append(args.drive)
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5.0)
+        except KeyboardInterrupt:
+            raise OSError(4, "Interrupted system call") from None
+
+    monkeypatch.setattr(run_cmd, "run", os_error_interrupted)
+    assert main(["campaign", "d1", "d2", "--out", str(tmp_path / "camp"), "--quiet"]) == 130
+    assert [str(d) for d in ran] == ["d1"] and capsys.readouterr().err.endswith("error: interrupted\n")
 
     def a_bug(args):
         raise RuntimeError("a bug")

@@ -43,6 +43,9 @@ from ..errors import FusionError
 
 __all__ = ["main", "USER_ERRORS"]
 
+#: The running command's interrupt watch (:func:`main`).
+_WATCH = None
+
 #: Subcommands, in the order ``vifusion --help`` lists them.
 SUBCOMMANDS = ("run", "campaign", "vision", "can", "simulate")
 
@@ -84,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
         # FFmpeg inside OpenCV prints its own line for a video it cannot open ("moov atom not
         # found") before the one-line error this program gives for it
         os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
-    interrupted = _InterruptWatch(quiet=not args.debug)
+    global _WATCH
+    interrupted = _WATCH = _InterruptWatch(quiet=not args.debug)
     try:
         status = int(args.func(args) or 0)
         if interrupted.seen:   # a library dropped the KeyboardInterrupt and the run went on
@@ -110,6 +114,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         interrupted.close()
+
+
+def interrupt_seen() -> bool:
+    """Whether the command running got SIGINT: an error after it is the interrupt's (a
+    campaign's drive that fails then ends the campaign instead of being skipped)."""
+    return _WATCH is not None and _WATCH.seen
 
 
 class _InterruptWatch:

@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..calibration import read_calibration
     from ..errors import InputError
-    from . import USER_ERRORS, _one_line
+    from . import USER_ERRORS, _one_line, interrupt_seen
     from . import run as run_cmd
 
     names = [Path(os.path.abspath(d)).name for d in args.drives]      # '.' names its folder; links keep theirs
@@ -88,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
             with contextlib.redirect_stdout(log):
                 run_cmd.run(run_args)
         except USER_ERRORS as e:
+            if interrupt_seen():   # Ctrl-C that surfaced as an error: the campaign ends, no drive skipped
+                raise KeyboardInterrupt from None
             reason = _one_line(e)
             print(f"warning: {drive} skipped: {reason}", file=sys.stderr)
             rows.append({**row, "status": f"skipped: {reason}"})
