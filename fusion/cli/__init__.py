@@ -114,6 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         interrupted.close()
+        _WATCH = None
 
 
 def interrupt_seen() -> bool:
