@@ -16,7 +16,7 @@ from vision.camera import Camera, Mount, RoadMarkings
 from vision.estimator import Estimator, _R_o_from_cp, camera_xyz_from_vehicle, vehicle_from_camera_xyz
 from vision.frames import R_CS_FROM_CP, Rx, Ry, matrix_from_euler, roll_xyz_from_zyx
 from vision.ipm import Bev, BevGrid, RoadTwist, ground_from_rays, pixels_from_rays
-from vision.lanes import Marker, _robust_fit
+from vision.lanes import Marker, _robust_fit_pair
 from vision.options import EstimatorOptions
 from vision.vanishing import r3_from_vp, r3_from_yaw_pitch, vp_bounds, vp_from_r3, yaw_pitch_from_r3
 
@@ -89,8 +89,7 @@ def exact_markers(bev: Bev, R_true_o_from_cp, H_true, edges_Y, v_range=(5, 330))
             us.append(-(l[1] * v + l[2]) / l[0])
         m = Marker(v.copy(), us[0], us[1], 100.0)
         m.v0 = float(v.mean())
-        m.fit_left, m.rms_left, kl = _robust_fit(v, us[0], 2, m.v0)
-        m.fit_right, m.rms_right, kr = _robust_fit(v, us[1], 2, m.v0)
+        m.fit_left, m.rms_left, kl, m.fit_right, m.rms_right, kr = _robust_fit_pair(v, us[0], us[1], 2, m.v0)
         m.inliers = kl & kr
         out.append(m)
     return out

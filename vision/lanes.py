@@ -249,14 +249,6 @@ def _greedy_peaks(ordered, min_gap):  # pragma: no cover (numba)
     return kept[:n]
 
 
-def _track(binary: np.ndarray, start_col: int, opts_px: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Sliding windows from the bottom (near) to the top (far): window centres ``(v, u)``
-    of the windows that held enough marker pixels; across empty windows (the gaps of a dashed
-    line) the line's current direction carries the window on."""
-    return _track_nb(binary, float(start_col), int(opts_px["n_windows"]), int(opts_px["half_window"]),
-                     float(opts_px["min_pix"]))
-
-
 @nb.njit(cache=True)
 def _track_nb(binary, c, n_win, hw, min_pix):  # pragma: no cover (numba)
     Hh, W = binary.shape
@@ -320,9 +312,16 @@ def _centre_rows(cfit, v_lo, v_hi, c_lo, c_hi):  # pragma: no cover (numba)
 
 @nb.njit(cache=True)
 def _measure_rows(bev, binary, rows, centers, lo, hi, half, wpx, mode):  # pragma: no cover (numba)
-    """Both edges of the marker nearest ``centers`` on each BEV row (see :func:`_edges_on_rows`).
+    """Both edges of the marker nearest ``centers`` on each BEV row; NaN where not found.
 
-    ``mode``: 0 binary, 1 subpixel, 2 area. Returns ``ul, ur, contrast`` (NaN where not found).
+    The marker's run is the set of thresholded pixels containing (or nearest to) the centre.
+    ``mode`` 0, binary: its first and last pixel +-0.5. 1, subpixel: on each side, the crossing
+    of the level halfway between the road (mean of one marker width beyond the run) and the
+    run's peak. 2, area: around those crossings, a window 1.5 half-maximum widths wider on each
+    side; the road level is a line through the means of bands beyond it; the marker's area above
+    it and its centroid give the edges ``centroid -+ area / 2`` (grey level x px; the caller
+    divides by a paint contrast). ``lo, hi`` per BEV row: columns from inside the camera image.
+    Returns ``ul, ur, contrast``.
     """
     n = rows.shape[0]
     W = bev.shape[1]
@@ -441,7 +440,7 @@ def _follow_line(bev, binary, start, n_windows, half_window, min_pix, half_win_r
     """One line from its start column: the sliding windows (:func:`_track`), the centre line
     through them (degree 2 from four windows, else 1) on every row they span, ``half_win_rows``
     beyond the end windows, within the columns ``(c_lo, c_hi)``, and both edges on those rows
-    (:func:`_edges_on_rows`). ``(ok, rows, ul, ur, contrast, good)``, ``good`` where both edges
+    (:func:`_measure_rows`). ``(ok, rows, ul, ur, contrast, good)``, ``good`` where both edges
     were found; not ``ok`` with fewer than two windows or ``min_rows`` rows."""
     wv, wu = _track_nb(binary, start, n_windows, half_window, min_pix)
     nothing = (False, np.empty(0, np.int64), np.empty(0), np.empty(0), np.empty(0), np.empty(0, np.bool_))
@@ -459,35 +458,6 @@ def _follow_line(bev, binary, start, n_windows, half_window, min_pix, half_win_r
     if good.sum() < min_rows:
         return nothing
     return True, rows, ul, ur, contrast, good
-
-
-def _edges_on_rows(bev: np.ndarray, binary: np.ndarray, rows: np.ndarray, centers: np.ndarray,
-                   half: int, wpx: float, mode: str, valid):
-    """Both edges of the marker near ``centers`` on each row; NaN where not found.
-
-    The marker's run is the set of thresholded pixels containing (or nearest to) the centre.
-    ``binary``: its first and last pixel +-0.5. ``subpixel``: on each side, the crossing of the
-    level halfway between the road (mean of one marker width beyond the run) and the run's
-    peak. ``area``: around those crossings, a window 1.5 half-maximum widths wider on each
-    side; the road level is a line through the means of bands beyond it; the marker's area above
-    it and its centroid give the edges ``centroid -+ area / 2`` (grey level x px; the caller
-    divides by a paint contrast). ``valid`` is ``(lo, hi)`` per BEV row: columns from inside
-    the camera image.
-    """
-    lo, hi = valid
-    return _measure_rows(bev, binary, rows.astype(np.int64), centers.astype(np.float64),
-                         np.asarray(lo, np.float64), np.asarray(hi, np.float64), int(half), float(wpx),
-                         _MODES[mode])
-
-
-def _median(a: np.ndarray) -> float:
-    """Median (numba; numpy's carries a large call overhead for small arrays)."""
-    return float(_median_nb(np.ascontiguousarray(a, dtype=np.float64))) if a.size else float("nan")
-
-
-@nb.njit(cache=True)
-def _median_nb(a):  # pragma: no cover (numba)
-    return np.median(a)
 
 
 @nb.njit(cache=True)
@@ -515,13 +485,6 @@ def _left_edge_distance(va, ca, va0, vb, cb, vb0):  # pragma: no cover (numba)
     return np.median(d[:n]) if n else np.inf
 
 
-def _robust_fit(v: np.ndarray, u: np.ndarray, deg: int, v0: float):
-    """Fit of ``u(v - v0)`` with one pass of rejection at 3 robust sigma; ``(coef, rms, inliers)``
-    (coefficients highest power first, in ``(v - v0) / 100``)."""
-    deg = min(deg, max(0, v.size - 2))
-    return _robust_fit_nb(v.astype(np.float64), u.astype(np.float64), deg, float(v0))
-
-
 @nb.njit(cache=True)
 def _median_where(a, keep):  # pragma: no cover (numba)
     """:func:`_median` of ``a[keep]`` (``keep`` not empty)."""
@@ -541,7 +504,9 @@ def _area_edges(ul, ur, contrast):  # pragma: no cover (numba)
 
 @nb.njit(cache=True)
 def _robust_fit_pair(v, ul, ur, deg, v0):  # pragma: no cover (numba)
-    """:func:`_robust_fit` of a marker's left and right edges (``deg`` already capped) in one call."""
+    """A marker's left and right edges, each fitted as ``u(v - v0)`` with one pass of rejection at 3
+    robust sigma (:func:`_robust_fit_nb`; ``deg`` already capped at ``v.size - 2``), in one call:
+    ``(coef, rms, inliers)`` of each, coefficients highest power first, in ``(v - v0) / 100``."""
     fl, rl, kl = _robust_fit_nb(v, ul, deg, v0)
     fr, rr, kr = _robust_fit_nb(v, ur, deg, v0)
     return fl, rl, kl, fr, rr, kr
@@ -618,15 +583,14 @@ def detect_markers(bev: np.ndarray, valid_lo: np.ndarray, valid_hi: np.ndarray, 
     if not starts:
         return []
     half_window = max(3, int(round(opts.window_m / dy_m)))
-    opx = dict(n_windows=opts.n_windows, half_window=half_window,
-               min_pix=max(3, int(round(0.3 * (Hh / opts.n_windows) * max(wpx, 1.0) * 0.5))))
+    min_pix = max(3, int(round(0.3 * (Hh / opts.n_windows) * max(wpx, 1.0) * 0.5)))
     half = max(4, int(round(1.6 * wpx)) + 2)
     found = []
     for s in starts:
-        # _track, the centre line through its windows on every row they span, _edges_on_rows
+        # _track_nb, the centre line through its windows on every row they span, _measure_rows
         # there, in one compiled call (a dozen numpy calls and conversions per line before)
         ok, rows, ul, ur, contrast, good = _follow_line(
-            bev, binary, float(s), int(opx["n_windows"]), int(opx["half_window"]), float(opx["min_pix"]),
+            bev, binary, float(s), int(opts.n_windows), half_window, float(min_pix),
             Hh / opts.n_windows / 2, 2 * wpx, W - 1 - 2 * wpx, lo64, hi64, int(half), float(wpx), _MODES[opts.edges],
             min_rows)
         if ok:
