@@ -1036,7 +1036,7 @@ class Estimator:
 
     @staticmethod
     def _twist_response(model: LaneModel, H: float, x0: float, zeta: float, x_ahead_m: float, dir_rows,
-                        J_vehicle, curvature_row=None) -> np.ndarray:
+                        J_vehicle, curvature_row) -> np.ndarray:
         """How the outputs respond to the road twisting in view: ``(3, 2)``, rows curvature
         (1/m per rad/m), pitch and yaw (rad per rad/m), columns the twist at the contact point
         and at ``x_ahead_m`` (the cross-sections), the twist ``tau(x) = d bank / dx`` linear
@@ -1084,8 +1084,7 @@ class Estimator:
         # camera's psi1, theta1, :func:`_direction_rows`; ``J_vehicle``: :func:`_vehicle_jacobian`)
         rows = np.zeros((3, model.cov.shape[0]))
         if model.c.size:
-            rows[0] = (curvature_row if curvature_row is not None
-                       else _mean_rows([model.curvature_row(j, x0) for j in (0, J - 1)]))
+            rows[0] = curvature_row       # the outer lines' mean, as the curvature's sigma takes it
         Jv, cam = J_vehicle, dir_rows
         rows[1] = Jv[1, 1] * cam[1] + Jv[1, 2] * cam[0]                         # vehicle pitch
         rows[2] = Jv[2, 1] * cam[1] + Jv[2, 2] * cam[0]                         # vehicle yaw
@@ -1150,7 +1149,7 @@ class Estimator:
     def _curvature_sigma(self, model: LaneModel, curvature: float, row) -> float:
         """1-sigma of the reported curvature: the lane model's covariance (vertical curvature
         included; ``row``: the curvature's first-order row in the model's parameters, the mean
-        of the outer lines' :meth:`LaneModel.curvature_row`) and the model terms of
+        of the outer lines' rows of :meth:`LaneModel.curvature_and_row`) and the model terms of
         :data:`CURVATURE_MODEL_SIGMA`.
 
         Where the fit chose straight lines (no shape term significant) this is 0 +- 0: the sigma

@@ -203,11 +203,6 @@ class LaneModel:
     def slope(self, j: int, x):
         return self.b[j] + self.line_scale[j] * self._shape_d(x, 1)
 
-    def curvature(self, j: int, x) -> float:
-        """Curvature of line ``j`` at ``x``, 1/m, positive turning left."""
-        s1 = float(self.slope(j, x))
-        return self.line_scale[j] * float(self._shape_d(x, 2)) / (1.0 + s1 * s1) ** 1.5
-
     def _row(self, k: int, x):
         """Derivatives of ``y(k, x)`` with respect to the parameters ``[a, b, c, dzeta]``: the
         road's lines do not depend on ``dzeta`` (it moves the projected points, not the lines),
@@ -240,8 +235,9 @@ class LaneModel:
         return R
 
     def curvature_and_row(self, j: int, x: float) -> tuple[float, np.ndarray]:
-        """:meth:`curvature` and :meth:`curvature_row` of line ``j`` at ``x``, the slope they share
-        computed once."""
+        """Curvature of line ``j`` at ``x`` (1/m, positive turning left) and its derivatives (to
+        first order in the slope) with respect to the parameters, the slope they share computed
+        once."""
         K, J = self.n_edges, self.n_lines
         s1 = float(self.slope(j, x))
         kappa = self.line_scale[j] * float(self._shape_d(x, 2)) / (1.0 + s1 * s1) ** 1.5
@@ -252,19 +248,6 @@ class LaneModel:
             p = i + 2
             R[K + J + i] = g * p * (p - 1) * t ** (p - 2) / _XS**2
         return kappa, R
-
-    def curvature_row(self, j: int, x: float) -> np.ndarray:
-        """Derivatives of ``curvature(j, x)`` (to first order in the slope) with respect to the
-        parameters."""
-        K, J = self.n_edges, self.n_lines
-        R = np.zeros(self.cov.shape[0])
-        t = float(x) / _XS
-        s1 = float(self.slope(j, x))
-        g = self.line_scale[j] / (1.0 + s1 * s1) ** 1.5
-        for i in range(self.c.size):
-            p = i + 2
-            R[K + J + i] = g * p * (p - 1) * t ** (p - 2) / _XS**2
-        return R
 
     def sigma_y(self, k: int, x) -> np.ndarray:
         """1-sigma of ``y(k, x)``, m."""
