@@ -14,20 +14,36 @@ from scipy.stats import chi2
 
 from vision.frames import wrap_angle
 
-__all__ = ["ANGLES", "rmse_table", "interp_truth", "consistency", "Consistency"]
+__all__ = ["ANGLES", "rmse_table", "interp_truth", "wrap_deg", "consistency", "Consistency"]
 
 #: Output angles compared with truth, as (column stem, truth column).
 ANGLES = ("roll", "pitch", "yaw", "bank", "roll_world", "pitch_world")
 
 
 def interp_truth(truth: pd.DataFrame, t_s: np.ndarray) -> pd.DataFrame:
-    """Truth columns linearly interpolated at ``t_s`` (NaN outside the truth's span)."""
+    """Truth columns linearly interpolated at ``t_s`` (NaN outside the truth's span). Angles
+    (``*_deg``) are interpolated the short way round: a heading stepping from 179.9 to -179.9
+    deg between two truth samples passes through 180, not 0 (a review measured 3.8 deg of yaw
+    RMSE for an estimate equal to such a truth 3 ms off its samples), and come back in
+    [-180, 180)."""
     tt = truth["t_s"].to_numpy(dtype=float)
     out = {"t_s": t_s}
     for c in truth.columns:
         if c != "t_s" and np.issubdtype(truth[c].dtype, np.number):
-            out[c] = np.interp(t_s, tt, truth[c].to_numpy(dtype=float), left=np.nan, right=np.nan)
+            y = truth[c].to_numpy(dtype=float)
+            angle = c.endswith("_deg")
+            if angle:
+                y = y.copy()
+                ok = np.isfinite(y)
+                y[ok] = np.unwrap(y[ok], period=360.0)
+            v = np.interp(t_s, tt, y, left=np.nan, right=np.nan)
+            out[c] = wrap_deg(v) if angle else v
     return pd.DataFrame(out)
+
+
+def wrap_deg(a):
+    """Angles in deg into [-180, 180)."""
+    return (np.asarray(a, dtype=float) + 180.0) % 360.0 - 180.0
 
 
 def rmse_table(estimate: pd.DataFrame, truth: pd.DataFrame, t_min_s: float = -math.inf,
@@ -42,8 +58,7 @@ def rmse_table(estimate: pd.DataFrame, truth: pd.DataFrame, t_min_s: float = -ma
     for a in angles:
         c = f"{a}_deg"
         if c in estimate and c in tr:
-            e = estimate[c].to_numpy(dtype=float)[m] - tr[c].to_numpy()[m]
-            e = (e + 180.0) % 360.0 - 180.0
+            e = wrap_deg(estimate[c].to_numpy(dtype=float)[m] - tr[c].to_numpy()[m])
             e = e[np.isfinite(e)]
             out[a] = float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
     return out

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import calibration_table
-from .metrics import ANGLES, consistency, interp_truth, rmse_table
+from .metrics import ANGLES, consistency, interp_truth, rmse_table, wrap_deg
 
 __all__ = ["ReportInputs", "write_report", "summarise"]
 
@@ -169,7 +169,7 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
         fig, axes = plt.subplots(len(scored), 1, figsize=(11, 2.25 * len(scored)), sharex=True, squeeze=False)
         axes = axes[:, 0]
         for ax, a in zip(axes, scored):
-            e = f[f"{a}_deg"].to_numpy() - truth[f"{a}_deg"].to_numpy()
+            e = wrap_deg(f[f"{a}_deg"].to_numpy() - truth[f"{a}_deg"].to_numpy())
             s = f[f"{a}_sigma_deg"].to_numpy()
             ax.plot(tf, e, color="tab:blue", lw=1.0, label="fused - truth")
             ax.fill_between(tf, -2 * s, 2 * s, color="tab:blue", alpha=0.15, lw=0, label="+-2 sigma")
@@ -182,13 +182,13 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             _scale_to(ax, [es, -es, [wide, -wide]])
             if a in ("roll", "pitch", "yaw") and vis is not None and len(vis):
                 tv = vis["t_s"].to_numpy() + r.camera_time_offset_s
-                tru_v = np.interp(tv, r.truth["t_s"], r.truth[f"{a}_deg"])
-                ax.plot(tv - t0, vis[f"{a}_deg"].to_numpy() - tru_v, ".", ms=2, color="tab:orange", alpha=0.5,
+                tru_v = interp_truth(r.truth, tv)[f"{a}_deg"].to_numpy()
+                ax.plot(tv - t0, wrap_deg(vis[f"{a}_deg"].to_numpy() - tru_v), ".", ms=2, color="tab:orange", alpha=0.5,
                         label="vision - truth")
             if a.endswith("_world") and r.imu_only is not None:
                 tru_i = interp_truth(r.truth, r.imu_only["t_s"].to_numpy())[f"{a}_deg"].to_numpy()
-                ax.plot(r.imu_only["t_s"] - t0, r.imu_only[f"{a}_deg"].to_numpy() - tru_i, color="tab:green", lw=0.8,
-                        label="IMU only - truth")
+                ax.plot(r.imu_only["t_s"] - t0, wrap_deg(r.imu_only[f"{a}_deg"].to_numpy() - tru_i), color="tab:green",
+                        lw=0.8, label="IMU only - truth")
             ax.set_ylabel(f"{a} error [deg]")
             ax.grid(alpha=0.3)
             ax.legend(loc="upper right", fontsize=8, ncol=3)
