@@ -74,6 +74,19 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
     for png in ("attitude.png", "world.png", "errors.png", "road.png", "biases.png"):
         assert (out / "report" / png).stat().st_size > 10_000
     assert not out.with_name("out.partial").exists()
+    # the Parquet twins hold the same table; the CSV keeps 9 significant digits (a fixed 6
+    # decimals kept 2 of a curvature sigma of 9e-5 1/m) and the times to the microsecond
+    for name, csv in (("vision", vision), ("fused", fused)):
+        pq = pd.read_parquet(out / f"{name}.parquet")
+        assert list(pq.columns) == list(csv.columns)
+        assert np.max(np.abs(pq["t_s"] - csv["t_s"])) <= 1e-6
+        num = [c for c in pq.columns if pd.api.types.is_numeric_dtype(pq[c]) and c != "t_s"]
+        np.testing.assert_allclose(csv[num].to_numpy(dtype=float), pq[num].to_numpy(dtype=float), rtol=1e-8, atol=0,
+                                   equal_nan=True, err_msg=name)
+    # a frame without a valid estimate has no numbers of one (its twist columns were 0.0)
+    bad = vision[vision["valid"] == 0]
+    assert len(bad) and bad[["roll_deg", "pitch_per_twist_m", "yaw_per_twist_m",
+                             "road_twist_bank_change_deg"]].isna().all().all()
 
 
 def test_run_without_inputs_processes_the_bundled_sample(tmp_path):
@@ -306,6 +319,19 @@ def test_campaign_carries_the_calibration_and_skips_a_bad_drive(drive, tmp_path)
     r = vifusion("campaign", tmp_path / "missing", "--out", tmp_path / "none", "--quiet")
     assert r.returncode == 2 and r.stderr.strip().splitlines()[-1] == "error: no drive of the campaign could be run"
     assert "Traceback" not in r.stderr
+    # run again into the same folder with the second drive now broken: its outputs of the first
+    # campaign do not outlive the row that now says 'skipped' (a review found them left there,
+    # complete-looking, beside a table that said the drive was skipped)
+    (second / "can.asc").unlink()
+    r = vifusion("campaign", drive, second, "--out", out, "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    table = pd.read_csv(out / "campaign.csv")
+    assert table["status"].iloc[0] == "ok" and table["status"].iloc[1].startswith("skipped: "), table["status"]
+    assert not (out / "second").exists() and (out / "drive" / "fused.csv").is_file()
+    # a drive's output folder holding files a run did not write: refused before any drive runs
+    (out / "drive" / "notes.txt").write_text("mine")
+    one_line_error(vifusion("campaign", second, drive, "--out", out, "--quiet"), "holds files a run did not write")
+    assert (out / "drive" / "notes.txt").is_file() and (out / "campaign.csv").is_file()
 
 
 def test_vision_command_with_the_can_log_is_the_runs_vision(tmp_path):
@@ -760,6 +786,10 @@ def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch
     monkeypatch.setattr(run_cmd, "run", os_error_interrupted)
     assert main(["campaign", "d1", "d2", "--out", str(tmp_path / "camp"), "--quiet"]) == 130
     assert [str(d) for d in ran] == ["d1"] and capsys.readouterr().err.endswith("error: interrupted\n")
+    # the table says so (it had been written only after the last drive, and an earlier
+    # campaign's table was left in its place)
+    table = pd.read_csv(tmp_path / "camp" / "campaign.csv")
+    assert list(table["status"]) == ["not run: interrupted"] * 2
 
     def a_bug(args):
         raise RuntimeError("a bug")

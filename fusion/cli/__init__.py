@@ -15,6 +15,7 @@ import signal
 import sys
 import threading
 import time
+from pathlib import Path
 
 
 def _process_started_s() -> float:
@@ -190,6 +191,28 @@ def workers_arg(text: str) -> int:
     if n < 1:
         raise argparse.ArgumentTypeError(f"needs at least 1 process, got {n}")
     return n
+
+
+def write_table(df, path: Path) -> None:
+    """One output table, CSV or Parquet by the suffix, written to ``PATH.partial`` and renamed.
+    CSV numbers keep 9 significant digits (a fixed 6 decimals kept 2 of a curvature sigma of
+    9e-5 1/m, a review found), the times ``t_s`` their microseconds."""
+    tmp = path.with_name(path.name + ".partial")
+    if path.suffix.lower() == ".parquet":
+        df.to_parquet(tmp, index=False)
+    else:
+        if "t_s" in df.columns:
+            import numpy as np
+
+            df = df.assign(t_s=np.char.mod("%.6f", df["t_s"].to_numpy(dtype=float)))
+        df.to_csv(tmp, index=False, float_format="%.9g")
+    os.replace(tmp, path)
+
+
+def write_tables(df, stem: Path) -> None:
+    """``STEM.csv`` and ``STEM.parquet`` (:func:`write_table`)."""
+    for suffix in (".csv", ".parquet"):
+        write_table(df, stem.with_name(stem.name + suffix))
 
 
 #: What the operating system's refusals mean for an output or input path, in words.

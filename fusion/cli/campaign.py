@@ -8,6 +8,12 @@ where its calibration came from, the fused bank's statistics, the RMSE against t
 drive has one, and the biases it ended with. A drive that fails (missing files, bad config) is
 skipped with its one-line reason in the table and on stderr, and the next drive starts from
 the last good calibration; the exit status is 2 when no drive succeeded.
+
+A campaign into a folder an earlier campaign wrote replaces it: the old table and the drives'
+old output folders are removed before the first drive (a folder holding anything a run did not
+write is refused first), so that no folder outlives the row that describes it. The table is
+written after every drive, the drives not yet run listed as ``not run``; an interrupt (Ctrl-C)
+leaves it so, with the interrupted drive and the rest ``not run: interrupted``.
 """
 
 from __future__ import annotations
@@ -18,11 +24,12 @@ import io
 import json
 import math
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
 
-from . import workers_arg
+from . import workers_arg, write_tables
 
 __all__ = ["add_parser", "run"]
 
@@ -46,11 +53,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import pandas as pd
-
-    from ..calibration import read_calibration
     from ..errors import InputError
-    from . import USER_ERRORS, _one_line, interrupt_seen
     from . import run as run_cmd
 
     names = [Path(os.path.abspath(d)).name for d in args.drives]      # '.' names its folder; links keep theirs
@@ -71,52 +74,85 @@ def run(args: argparse.Namespace) -> int:
         if clash:
             raise InputError(f"--out {args.out}: the output folder {target} of drive {name} would replace the drive "
                              f"{clash[0]}: give the campaign a folder of its own")
+    for name in names:      # refused before any work, not on the drive's turn
+        run_cmd.check_out(args.out / name)
     args.out.mkdir(parents=True, exist_ok=True)
+    for stale in [args.out / "campaign.csv", args.out / "campaign.parquet",
+                  *(args.out / n for n in names), *(args.out / (n + ".partial") for n in names)]:
+        if stale.is_dir():
+            shutil.rmtree(stale)
+        elif stale.exists():
+            stale.unlink()
     calibration = args.calibration
     rows = []
-    for drive, name in zip(args.drives, names):
-        out = args.out / name
-        run_args = argparse.Namespace(
-            drive=drive, video=None, frames=None, can=None, dbc=None, config=None, truth=None, out=out,
-            smooth=args.smooth, calibration=calibration, estimate_time_offset=False, debug_video=None,
-            no_report=args.no_report, workers=args.workers, quiet=args.quiet, debug=False,
-            started_s=time.perf_counter())
-        row = {"drive": str(drive), "calibration_from": str(calibration) if calibration else ""}
-        print(f"== {drive}" + (f" (from {calibration})" if calibration else ""))
-        try:
-            log = io.StringIO()
-            with contextlib.redirect_stdout(log):
-                run_cmd.run(run_args)
-        except USER_ERRORS as e:
-            if interrupt_seen():   # Ctrl-C that surfaced as an error: the campaign ends, no drive skipped
-                raise KeyboardInterrupt from None
-            reason = _one_line(e)
-            print(f"warning: {drive} skipped: {reason}", file=sys.stderr)
-            rows.append({**row, "status": f"skipped: {reason}"})
-            continue
-        fused = pd.read_csv(out / "fused.csv")
-        row.update(status="ok", **_drive_row(fused, out))
-        rows.append(row)
-        line = (f"   bank mean {row['bank_mean_deg']:+.2f} deg, |max| {row['bank_abs_max_deg']:.2f} deg"
-                + (f", RMSE vs truth {row['bank_rmse_deg']:.3f} deg" if "bank_rmse_deg" in row else ""))
-        if (out / "calibration.toml").is_file():
-            cal = read_calibration(out / "calibration.toml")
-            line += (f"; lateral accelerometer bias {cal['accel_bias_m_s2'][1]:+.4f} "
-                     f"+- {cal['accel_bias_sigma_m_s2'][1]:.4f} m/s^2")
-            if not args.no_carry:
-                calibration = out / "calibration.toml"
-        else:
-            print(f"warning: {drive} wrote no calibration.toml: the next drive starts from "
-                  f"{calibration or 'the config'}", file=sys.stderr)
-        print(line)
-    table = pd.DataFrame(rows)
-    _write_tables(table, args.out / "campaign")
+    try:
+        for drive, name in zip(args.drives, names):
+            calibration = _one_drive(args, drive, name, calibration, rows)
+            write_tables(_table(rows, args.drives, "not run"), args.out / "campaign")
+    except KeyboardInterrupt:
+        write_tables(_table(rows, args.drives, "not run: interrupted"), args.out / "campaign")
+        raise
+    table = _table(rows, args.drives, "not run")
     ok = int((table["status"] == "ok").sum())
     print(f"wrote {args.out}/campaign.csv and campaign.parquet: {ok} of {len(table)} drives done")
     if ok == 0:
         print("error: no drive of the campaign could be run", file=sys.stderr)
         return 2
     return 0
+
+
+def _table(rows: list[dict], drives: list[Path], pending: str):
+    """The campaign's table: the rows of the drives run so far, then the rest as ``pending``."""
+    import pandas as pd
+
+    return pd.DataFrame(rows + [{"drive": str(d), "calibration_from": "", "status": pending}
+                                for d in drives[len(rows):]])
+
+
+def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, rows: list[dict]):
+    """Run one drive into ``args.out / name``, append its row; the calibration the next drive
+    starts from."""
+    import pandas as pd
+
+    from ..calibration import read_calibration
+    from . import USER_ERRORS, _one_line, interrupt_seen
+    from . import run as run_cmd
+
+    out = args.out / name
+    run_args = argparse.Namespace(
+        drive=drive, video=None, frames=None, can=None, dbc=None, config=None, truth=None, out=out,
+        smooth=args.smooth, calibration=calibration, estimate_time_offset=False, debug_video=None,
+        no_report=args.no_report, workers=args.workers, quiet=args.quiet, debug=False,
+        started_s=time.perf_counter())
+    row = {"drive": str(drive), "calibration_from": str(calibration) if calibration else ""}
+    print(f"== {drive}" + (f" (from {calibration})" if calibration else ""))
+    try:
+        log = io.StringIO()
+        with contextlib.redirect_stdout(log):
+            run_cmd.run(run_args)
+    except USER_ERRORS as e:
+        if interrupt_seen():   # Ctrl-C that surfaced as an error: the campaign ends, no drive skipped
+            raise KeyboardInterrupt from None
+        reason = _one_line(e)
+        print(f"warning: {drive} skipped: {reason}", file=sys.stderr)
+        rows.append({**row, "status": f"skipped: {reason}"})
+        return calibration
+    fused = pd.read_csv(out / "fused.csv")
+    row.update(status="ok", **_drive_row(fused, out))
+    rows.append(row)
+    line = (f"   bank mean {row['bank_mean_deg']:+.2f} deg, |max| {row['bank_abs_max_deg']:.2f} deg"
+            + (f", RMSE vs truth {row['bank_rmse_deg']:.3f} deg" if "bank_rmse_deg" in row else ""))
+    if (out / "calibration.toml").is_file():
+        cal = read_calibration(out / "calibration.toml")
+        line += (f"; lateral accelerometer bias {cal['accel_bias_m_s2'][1]:+.4f} "
+                 f"+- {cal['accel_bias_sigma_m_s2'][1]:.4f} m/s^2")
+        if not args.no_carry:
+            calibration = out / "calibration.toml"
+    else:
+        print(f"warning: {drive} wrote no calibration.toml: the next drive starts from "
+              f"{calibration or 'the config'}", file=sys.stderr)
+    print(line)
+    return calibration
 
 
 def _drive_row(fused, out: Path) -> dict:
@@ -141,14 +177,3 @@ def _drive_row(fused, out: Path) -> dict:
         if c.startswith(("gyro_bias_", "accel_bias_")):
             row[c] = float(last[c])
     return row
-
-
-def _write_tables(table, stem: Path) -> None:
-    import os
-
-    for suffix, write in ((".csv", lambda p: table.to_csv(p, index=False, float_format="%.9g")),
-                          (".parquet", lambda p: table.to_parquet(p, index=False))):
-        path = stem.with_suffix(suffix)
-        tmp = path.with_name(path.name + ".partial")
-        write(tmp)
-        os.replace(tmp, path)

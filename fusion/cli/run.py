@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import workers_arg
+from . import workers_arg, write_tables
 
 __all__ = ["add_parser", "run"]
 
@@ -124,7 +124,7 @@ def _run(args: argparse.Namespace) -> int:
     imu_truth = read_truth(files.imu_truth, columns=("t_s",))
     out = args.out.resolve()          # '--out .' names the folder it is
     tmp = out.with_name(out.name + ".partial")
-    _check_out(out)
+    check_out(out)
     if args.debug_video is not None:
         from vision.debug import DebugWriter
 
@@ -203,7 +203,7 @@ def _run(args: argparse.Namespace) -> int:
         warnings.append(f"vision valid on {n_valid} of {len(vision)} frames{why}: the fused angles relative to "
                         "the road rest on the IMU and the last bank estimate elsewhere")
     t0 = time.perf_counter()
-    _write_csv(vision, tmp / "vision.csv")
+    write_tables(vision, tmp / "vision")
     timings["outputs"] = time.perf_counter() - t0   # the tables grow with the drive: not a fixed cost
 
     time_offset = None
@@ -234,7 +234,7 @@ def _run(args: argparse.Namespace) -> int:
     timings["fusion"] = time.perf_counter() - t0
     warnings += fused.warnings
     t0 = time.perf_counter()
-    _write_csv(table, tmp / "fused.csv")
+    write_tables(table, tmp / "fused")
     calibration = None
     try:
         calibration = calibration_table(fused.fused, None if has_pitch_rate else pitch_gyro_prior_deg_s(fusion_opts.noise))
@@ -303,10 +303,10 @@ VISION_VALID_WARN = 0.5
 OFFSET_SIGNIFICANCE = 2.0
 
 #: What a run writes into its ``--out`` folder: an existing folder holding only these is replaced.
-RUN_OUTPUTS = frozenset({"vision.csv", "fused.csv", "calibration.toml", "report"})
+RUN_OUTPUTS = frozenset({"vision.csv", "vision.parquet", "fused.csv", "fused.parquet", "calibration.toml", "report"})
 
 
-def _check_out(out: Path) -> None:
+def check_out(out: Path) -> None:
     """``--out`` must be new, or a folder an earlier run wrote (replaced at the end): a folder
     with anything else in it is left alone, not emptied."""
     from ..errors import InputError
@@ -320,12 +320,6 @@ def _check_out(out: Path) -> None:
                              f"{', ...' if len(other) > 3 else ''}): give a new or empty folder")
 
 
-def _write_csv(df, path: Path) -> None:
-    import os
-
-    tmp = path.with_name(path.name + ".partial")
-    df.to_csv(tmp, index=False, float_format="%.6f")
-    os.replace(tmp, path)
 
 
 def _offset_line(t: dict) -> str:

@@ -9,10 +9,9 @@ the same drive and workers. Without it the map is off and the summary line says 
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
-from . import workers_arg
+from . import workers_arg, write_table
 
 
 def add_parser(sub) -> None:
@@ -78,12 +77,7 @@ def run(args: argparse.Namespace) -> int:
                                    progress=not args.quiet, debug_video=args.debug_video,
                                     workers=args.workers or default_workers())
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(args.out.name + ".partial")
-    if args.out.suffix.lower() == ".parquet":
-        vision.to_parquet(tmp, index=False)
-    else:
-        vision.to_csv(tmp, index=False, float_format="%.6f")
-    os.replace(tmp, args.out)
+    write_table(vision, args.out)
     n = len(vision)
     missing = f"; {stats['frames_missing']} listed frames not in the video" if stats["frames_missing"] else ""
     print(f"wrote {args.out}: {n} frames, {stats['valid']} valid ({100 * stats['valid'] / max(n, 1):.0f} %), "
