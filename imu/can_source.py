@@ -87,6 +87,7 @@ class _SourceCount:
     duplicates: int = 0
     unaligned: int = 0
     last_t: float = -math.inf
+    last_payload: bytes = b""
     gaps: list = field(default_factory=list)
     valid: dict = field(default_factory=dict)
     invalid: dict = field(default_factory=dict)
@@ -322,9 +323,10 @@ class StreamDecoder:
             if not present:
                 continue
             sc = self._src[si]
-            if t == sc.last_t:
-                sc.duplicates += 1
+            if t == sc.last_t or (t - sc.last_t < self.window_s and payload == sc.last_payload):
+                sc.duplicates += 1      # a repeat, or an echo (imu.log_source._duplicates)
                 continue
+            sc.last_payload = payload
             if sc.frames and math.isfinite(sc.last_t) and t - sc.last_t > self.gap_limit_s and len(sc.gaps) < _MAX_GAPS:
                 sc.gaps.append(Gap(src.name, sc.last_t, t - sc.last_t))
             sc.frames += 1

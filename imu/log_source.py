@@ -16,7 +16,8 @@ ones); this module makes them robust and fast for the IMU:
   error frames, IDs with the other standard/extended flag, other bus channels, remote frames,
   non-finite timestamps, frames shorter than the DBC length (unless ``pad_short_frames``),
   timestamps earlier than an already accepted mapped frame ("backwards"), and a second frame of
-  the same source at the same timestamp ("duplicate") are skipped and counted per message.
+  the same source at the same timestamp, or with the same bytes within ``align_window_s`` of it
+  (an echo: "duplicate") are skipped and counted per message.
 
 Timestamps are those python-can's ``LogReader`` returns with default arguments (the log clock of
 ``INTERFACE.md``).
@@ -649,7 +650,7 @@ def _finish(path: Path, plan: DecodePlan, mount: ImuMount, packed: _Packed, chan
         pres = vals.present
         rows_p = rows[pres]
         tp = t[rows_p]
-        dup = np.concatenate(([False], tp[1:] == tp[:-1])) if len(tp) else np.zeros(0, bool)
+        dup = _duplicates(tp, data[rows_p, :s.length], mapping.align_window_s)
         ok = ~dup
         frames.append(SourceFrames(t_s=tp[ok], si=vals.si[pres][ok], valid=vals.valid[pres][ok],
                                    channels=tuple(p.channel for p in s.signals)))
@@ -673,6 +674,24 @@ def _finish(path: Path, plan: DecodePlan, mount: ImuMount, packed: _Packed, chan
                        error_frames, unmapped_frames, n_read, n, state, columns)
     attrs = table_attrs(plan, mount, summary)
     return make_frame(columns, attrs), summary
+
+
+def _duplicates(t: np.ndarray, payload: np.ndarray, window_s: float) -> np.ndarray:
+    """Frames of one source that repeat the last one kept: at its timestamp, or with its bytes
+    within ``window_s`` (``align_window_s``) of it, an echo (a second interface on the bus, a
+    gateway forwarding a frame twice). Such a copy of the clock message opened a sample of its
+    own that no other frame joined, and the wheel speed went to that incomplete sample. Times
+    are non-decreasing (frames behind their ID's newest are dropped before)."""
+    dup = np.zeros(len(t), dtype=bool)
+    if len(t) < 2:
+        return dup
+    dt = np.diff(t)
+    for i in np.flatnonzero((dt < window_s) | (dt == 0.0)) + 1:   # nothing else can be a copy
+        j = i - 1
+        while dup[j]:
+            j -= 1
+        dup[i] = t[i] == t[j] or (t[i] - t[j] < window_s and np.array_equal(payload[i], payload[j]))
+    return dup
 
 
 def _summary(path, plan, mount, frames, stats_raw, per_msg, unaligned, unknown, unknown_ext, error_frames,

@@ -156,6 +156,33 @@ def test_DUPLICATE_FRAMES_counted_not_doubled(tmp_path, clean):
     assert np.array_equal(table["accel_z_m_s2"], ref["accel_z_m_s2"])
 
 
+def test_ECHOED_FRAMES_counted_not_taken_for_samples(tmp_path, clean):
+    """Every IMU and wheel-speed frame echoed 0.1 ms later (a second interface on the bus, a
+    gateway forwarding twice): the same samples as the clean log, live and from the log, the
+    copies counted. Live, each echoed rate frame had opened a sample no acceleration joined and
+    the wheel speed went to it: no speed and no bank for the whole drive, no warning; the log
+    path refused the log, calling the copies a 0.1 ms message period (a review found both)."""
+    from imu import StreamDecoder, samples_frame
+
+    _, _, msgs, ref, _ = clean
+    bad = []
+    for m in msgs:
+        bad.append(m)
+        if m.arbitration_id in (0x174, 0x178, 0x122):
+            bad.append(can.Message(timestamp=m.timestamp + 1e-4, arbitration_id=m.arbitration_id,
+                                   is_extended_id=m.is_extended_id, data=m.data, channel=m.channel))
+    path = _write(bad, tmp_path / "x.csv")    # .csv keeps the float timestamps exactly
+    n_echo = len(bad) - len(msgs)
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    live = [s for m in can.LogReader(path) for s in dec.push(m)] + dec.flush()
+    for got, counts in ((table, summary), (samples_frame(live), dec.summary())):
+        assert len(got) == len(ref) and sum(s.duplicates for s in counts.sources) == n_echo
+        for c in ("t_s", "gyro_z_rad_s", "accel_y_m_s2", "speed_m_s"):
+            assert np.array_equal(got[c].to_numpy(), ref[c].to_numpy(), equal_nan=True), c
+        assert got["fresh_speed"].sum() == ref["fresh_speed"].sum() > 0
+
+
 def test_GAP_reported_not_interpolated(tmp_path, clean):
     imu, offset, msgs, ref, _ = clean
     t0 = msgs[0].timestamp
