@@ -51,9 +51,17 @@ from .pipeline import last_speed
 
 __all__ = ["LiveFusion"]
 
-#: Frames in a row stamped at or before the last one taken after which ``LiveFusion.warnings``
-#: says the camera's clock may have stepped back (a second at 30 fps; one repeated frame is not).
+#: Frames in a row refused for their stamps after which ``LiveFusion.warnings`` says the camera's
+#: clock may be off (a second at 30 fps; one repeated frame or one bad stamp is not): stamped at
+#: or before the last one taken (stepped back), too far ahead of the bus, or too old for the
+#: filter's history.
 CLOCK_BACK_WARN_FRAMES = 30
+
+
+def _refused(reason: str) -> VisionEstimate:
+    """The result of a frame not given to the estimator."""
+    nan = math.nan
+    return VisionEstimate(nan, nan, nan, nan, nan, nan, False, reason=reason)
 
 
 class LiveFusion:
@@ -84,7 +92,9 @@ class LiveFusion:
         self._speeds: deque = deque(maxlen=256)    # recent fresh wheel speeds: (t_s, m/s)
         self._last_frame = (math.nan, math.nan)    # the last frame: (t_s, speed then)
         self._last_estimate: VisionEstimate | None = None
-        self._behind_in_row = 0                    # frames in a row not after the last one taken
+        # frames in a row refused for their stamps: not after the last one taken, too far ahead
+        # of the bus, their results too old for the filter (CLOCK_BACK_WARN_FRAMES)
+        self._in_row = dict(behind=0, ahead=0, old=0)
 
     def push_can(self, msg, received_s: float | None = None) -> int:
         """One CAN message (python-can ``Message``); returns how many IMU samples it released
@@ -116,33 +126,44 @@ class LiveFusion:
         """A camera frame captured at ``t_s`` (bus clock, before the configured camera offset).
         The estimator is told the distance travelled since the last frame from the wheel speed
         (for the road's twist, :attr:`vision.options.EstimatorOptions.road_twist`), by the rule
-        of the offline run (:func:`fusion.pipeline.last_speed`). A frame not after the previous
-        one (a repeated or reordered frame) or not finite is skipped and counted (``counts``):
-        the estimator's road map moves forward only; the previous result is returned. So is a
-        frame too far ahead of the bus (``stream.counts["vision_future"]``: a bad stamp, a camera
-        clock that stepped), before the estimator, and it does not hold back the frames after it.
-        From one thread at a time (the estimator keeps the road map between frames)."""
+        of the offline run (:func:`fusion.pipeline.last_speed`) over the samples the bus has
+        released so far. A frame handed in before the bus has released the samples of its
+        capture time (a camera thread faster than the decoder's align window) may see the speed
+        before, a few millimetres of travel off the offline run's, which the road-twist map can
+        turn into visibly different angles on some frames (README, "Embedding").
+
+        A frame not after the previous one (a repeated or reordered frame) is skipped and counted
+        (``counts``): the estimator's road map moves forward only; the previous result is
+        returned. A frame whose stamp is not finite, or too far ahead of the bus
+        (``stream.counts["vision_future"]``: a bad stamp, a camera clock that stepped), is
+        refused before the estimator, and does not hold back the frames after it; so is a
+        repeat before any frame was taken: an invalid estimate whose ``reason`` says why is
+        returned. Thirty frames in a row refused for their stamps, or with results too old for
+        the filter's history, put a line in ``warnings``. From one thread at a time (the
+        estimator keeps the road map between frames)."""
         t_cap = t_s + self.settings.camera_time_offset_s
         with self._lock:
             t0, v0 = self._last_frame
             if not math.isfinite(t_cap):
                 self.counts["frames_bad_time"] += 1
-                return self._last_estimate
+                return _refused(f"frame stamp {t_s} is not a time")
             if not t_cap > t0 and math.isfinite(t0):
                 self.counts["frames_out_of_order"] += 1
-                self._behind_in_row += 1
-                if self._behind_in_row == CLOCK_BACK_WARN_FRAMES:
-                    self.warnings.append(
-                        f"{CLOCK_BACK_WARN_FRAMES} frames in a row stamped at or before the last one taken "
-                        f"({t0:.3f} s; this one {t_cap:.3f} s): has the camera's clock stepped back? Frames are "
-                        "refused until their stamps pass it (counts['frames_out_of_order'])")
-                return self._last_estimate
-            self._behind_in_row = 0
+                self._count_in_row("behind", f"stamped at or before the last one taken ({t0:.3f} s; this one "
+                                   f"{t_cap:.3f} s): has the camera's clock stepped back? Frames are refused until "
+                                   "their stamps pass it (counts['frames_out_of_order'])")
+                return self._last_estimate or _refused(f"frame at {t_cap:.3f} s not after the last one taken")
+            self._in_row["behind"] = 0
             if self.stream.too_far_ahead(t_cap):
                 # a bad stamp, a camera clock that stepped: refused before the estimator, whose
                 # road map would move by the stamp's travel, and not the last frame's time
                 self.stream.counts["vision_future"] += 1
-                return self._last_estimate
+                newest = self.stream.t_s
+                self._count_in_row("ahead", f"stamped too far ahead of the CAN bus (this one {t_cap:.3f} s, the bus "
+                                   f"at {newest:.3f} s): is the camera's clock ahead, or camera_time_offset_s "
+                                   "wrong? (stream.counts['vision_future'])")
+                return _refused(f"frame at {t_cap:.3f} s too far ahead of the CAN bus ({newest:.3f} s)")
+            self._in_row["ahead"] = 0
             v = float(last_speed(*np.array(self._speeds).T, t_cap)[0]) if self._speeds else math.nan
             self._last_frame = (t_cap, v)
         est = self.vision.estimate(image, travel_m=travel_between(v0, v, t_cap - t0))
@@ -153,12 +174,25 @@ class LiveFusion:
     def push_vision(self, t_s: float, est: VisionEstimate) -> None:
         """A vision result computed elsewhere (another thread or process)."""
         with self._lock:
+            old = self.stream.counts["vision_too_old"]
             self.stream.add_vision(t_s + self.settings.camera_time_offset_s, est.rpy_rad,
                                    (est.roll_sigma_rad, est.pitch_sigma_rad, est.yaw_sigma_rad), est.valid,
                                    est.curvature_1_m, est.lateral_offset_m,
                                    est.curvature_sigma_1_m, est.roll_lookahead_m,
                                    (est.pitch_per_twist_m, est.yaw_per_twist_m),
                                    (est.road_twist_rad_m, est.road_twist_sigma_rad_m), est.twist_response)
+            if self.stream.counts["vision_too_old"] > old:
+                self._count_in_row("old", f"with results older than the filter's history (this one "
+                                   f"{t_s:.3f} s, the bus at {self.stream.t_s:.3f} s): is the camera's clock "
+                                   "behind, or camera_time_offset_s wrong? (stream.counts['vision_too_old'])")
+            elif est.valid:
+                self._in_row["old"] = 0
+
+    def _count_in_row(self, kind: str, what: str) -> None:
+        """One more frame in a row refused for its stamp; the warning once at the limit."""
+        self._in_row[kind] += 1
+        if self._in_row[kind] == CLOCK_BACK_WARN_FRAMES:
+            self.warnings.append(f"{CLOCK_BACK_WARN_FRAMES} frames in a row {what}")
 
     def estimate(self) -> Estimate:
         """The latest estimate (after the newest IMU sample), with 1-sigma."""

@@ -357,6 +357,29 @@ def test_a_camera_clock_that_steps_back_is_said(sample_offline):
     assert live.counts["frames_out_of_order"] == 58 and not any("stepped back" in w for w in live.warnings)
 
 
+def test_a_camera_clock_seconds_off_the_bus_is_said(sample_offline):
+    """The camera's stamps 2 s ahead of the bus: every frame is refused before the estimator as
+    from the future; 2 s behind: every result is older than the filter's 1 s history. Either
+    way the filter runs on the IMU alone, and ``warnings`` now says so once, after 30 frames
+    (it only counted them); ``push_frame`` returns an invalid estimate saying why (it returned
+    None when no frame had been taken, which a caller reading ``.valid`` crashed on)."""
+    cfg, messages, frames, _, _ = sample_offline
+    first = LiveFusion(cfg)
+    for m in messages[:300]:
+        first.push_can(m)
+    est = first.push_frame(frames[0][0] + 2.0, frames[0][1])
+    assert est is not None and not est.valid and "ahead of the CAN bus" in est.reason
+    est = first.push_frame(float("nan"), frames[0][1])
+    assert not est.valid and "not a time" in est.reason
+    for shift, said in ((2.0, "too far ahead of the CAN bus"), (-2.0, "older than the filter's history")):
+        live, _, _ = _live_run(sample_offline, lambda n, t: [t + shift])
+        assert live.stream.counts["vision_used"] == 0
+        hits = [w for w in live.warnings if said in w]
+        assert len(hits) == 1 and hits[0].startswith("30 frames in a row"), live.warnings
+    live, _, _ = _live_run(sample_offline, lambda n, t: [t])
+    assert not live.warnings and live.stream.counts["vision_used"] > 0
+
+
 def test_vision_results_wait_bounded_for_a_silent_imu(sample_offline):
     """Results pushed while no IMU sample has come (the camera started first, the IMU's ID is
     silent): only the history's span of them waits. Before, every result stayed queued: 18,000
