@@ -134,3 +134,40 @@ def test_negative_frame_count_is_one_line(tmp_path):
     r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "out", "--frames", "-1")
     assert r.returncode == 2 and r.stderr.strip() == "error: --frames must be >= 0, got -1", r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_force_replaces_a_drive_not_a_folder_of_anything(tmp_path, monkeypatch):
+    """``--force`` replaced any folder: with ``--out ..`` it emptied the parent folder, and a
+    thesis beside a drive went with it (a review). It now replaces a folder holding only what
+    a simulation writes and refuses anything else in one line, touching nothing; the root is no
+    output folder; a negative seed is a scenario error; a simulation that fails leaves no
+    ``OUT.partial`` behind."""
+    scen = TEST_SCENARIOS / "tiny_banked_curve.toml"
+    out = tmp_path / "work" / "drive"
+    r = vifusion("simulate", scen, "--out", out, "--no-video", "--quiet")
+    assert r.returncode == 0, r.stderr
+    r = vifusion("simulate", scen, "--out", out, "--no-video", "--quiet", "--force")   # a drive: replaced
+    assert r.returncode == 0, r.stderr
+    (out / "thesis.tex").write_text("mine")
+    for target, cwd in ((out, None), ("..", out)):
+        r = vifusion("simulate", scen, "--out", target, "--no-video", "--quiet", "--force", cwd=cwd)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert "holds files a simulation did not write" in r.stderr, r.stderr
+    assert (out / "thesis.tex").read_text() == "mine" and (out / "truth.csv").is_file()
+    r = vifusion("simulate", scen, "--out", "/", "--no-video", "--force")
+    assert r.returncode == 2 and r.stderr.strip() == "error: /: the root is not an output folder", r.stderr
+    bad = tmp_path / "seed.toml"
+    bad.write_text(scen.read_text().replace("seed = 5\n", "seed = -3\n", 1))
+    r = vifusion("simulate", bad, "--out", tmp_path / "s")
+    assert r.returncode == 2 and "seed" in r.stderr and ">= 0" in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+    from drivesim import drive as drive_mod
+    from drivesim.scenario import load_scenario
+
+    def broken(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(drive_mod, "simulate_imu", broken)
+    with pytest.raises(OSError):
+        drive_mod.simulate(load_scenario(scen), tmp_path / "half", progress=False, render_video=False)
+    assert not (tmp_path / "half.partial").exists() and not (tmp_path / "half").exists()

@@ -21,6 +21,7 @@ never leaves a drive that looks whole.
 from __future__ import annotations
 
 import math
+import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -169,16 +170,49 @@ def _open_video(path: Path, codec: str, fps: float, size: tuple[int, int]):
 
 def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
              max_frames: int | None = None, render_video: bool = True, overwrite: bool = False) -> DriveFiles:
-    """Simulate ``scenario`` into ``out_dir``; see the module docstring for the files."""
-    from .canlog import DBC_PATH, signal_map, write_can_log
+    """Simulate ``scenario`` into ``out_dir`` (written as ``OUT.partial``, renamed at the end,
+    removed on an error); see the module docstring for the files. ``overwrite`` replaces an
+    earlier simulated drive, and refuses a folder holding anything else."""
+    from .canlog import DBC_PATH
 
-    out_dir = Path(out_dir)
-    if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
-        raise InputError(f"{out_dir}: exists and is not empty (use --force to replace it)")
+    out_dir = Path(os.path.abspath(out_dir))      # '.' and '..' name the folders they are
+    if not out_dir.name:
+        raise InputError(f"{out_dir}: the root is not an output folder")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir}: exists and is a file")
+    if out_dir.is_dir() and any(out_dir.iterdir()):
+        if not overwrite:
+            raise InputError(f"{out_dir}: exists and is not empty (use --force to replace it)")
+        other = sorted(p.name for p in out_dir.iterdir() if not _simulator_wrote(p.name))
+        if other:   # --force replaces a drive, not a folder of anything (a review: '--out ..' emptied the parent)
+            raise InputError(f"{out_dir} holds files a simulation did not write ({', '.join(other[:3])}"
+                             f"{', ...' if len(other) > 3 else ''}): --force replaces only a simulated drive")
     tmp = out_dir.with_name(out_dir.name + ".partial")
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
+    try:
+        _simulate_into(scenario, tmp, progress=progress, max_frames=max_frames, render_video=render_video)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)    # no half drive left to look like one
+        raise
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    tmp.rename(out_dir)
+    return DriveFiles.in_dir(out_dir, scenario.video.codec, scenario.can.format, DBC_PATH.name)
+
+
+def _simulator_wrote(name: str) -> bool:
+    """Whether a file of this name is one :func:`simulate` writes."""
+    return (name in {"frames.csv", "config.toml", "truth.csv", "truth_frames.csv", "imu_truth.csv", "scenario.toml",
+                     "preview.png", *VIDEO_NAMES.values()}
+            or name.startswith("can.") or name.endswith(".dbc"))
+
+
+def _simulate_into(scenario: Scenario, tmp: Path, *, progress: bool, max_frames: int | None,
+                   render_video: bool) -> None:
+    from .canlog import DBC_PATH, signal_map, write_can_log
+
     files = DriveFiles.in_dir(tmp, scenario.video.codec, scenario.can.format, DBC_PATH.name)
 
     rng = np.random.default_rng(scenario.seed)
@@ -224,8 +258,3 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         finally:
             if writer is not None:
                 writer.release()
-
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    tmp.rename(out_dir)
-    return DriveFiles.in_dir(out_dir, scenario.video.codec, scenario.can.format, DBC_PATH.name)

@@ -147,7 +147,7 @@ def parse_scenario(data: dict, source: str) -> Scenario:
     sc = table("scenario")
     name = sc.get("name", "str", Path(source).stem)
     duration = sc.get("duration_s", "float", min=0.1, max=3600.0)
-    seed = sc.get("seed", "int", 0)
+    seed = sc.get("seed", "int", 0, min=0)     # numpy's generators take no negative seed
     vehicle = sc.get("vehicle", "str", "motorcycle", choices=("motorcycle", "car"))
     description = sc.get("description", "str", "")
     sc.done()
