@@ -590,6 +590,31 @@ def test_an_output_path_the_system_refuses_is_one_line(drive, tmp_path):
     one_line_error(r, "file name too long")
 
 
+def test_an_output_that_is_an_input_is_refused(copy, tmp_path):
+    """An output path naming one of the command's inputs is refused before any work, the
+    input untouched (a review: ``vifusion can X.csv --out X.csv`` replaced the recording with
+    its decode; ``vision --out frames.csv`` the frame list; ``--debug-video`` equal to
+    ``--video`` left the video a 60-frame debug video); ``run --out /`` is one line (it was a
+    traceback)."""
+    import can as pycan
+
+    log = tmp_path / "log.csv"          # python-can's CSV log format
+    with pycan.Logger(log) as w:
+        for m in list(pycan.LogReader(copy / "can.asc"))[:50]:
+            w.on_message_received(m)
+    before = {p: p.read_bytes() for p in (log, copy / "frames.csv", copy / "video.mp4")}
+    one_line_error(vifusion("can", log, "--config", copy / "config.toml", "--out", log), "is an input")
+    common = ("--video", copy / "video.mp4", "--config", copy / "config.toml")
+    one_line_error(vifusion("vision", *common, "--frames", copy / "frames.csv", "--out", copy / "frames.csv"),
+                   "is an input")
+    one_line_error(vifusion("vision", *common, "--out", tmp_path / "v.csv", "--debug-video", copy / "video.mp4"),
+                   "is an input")
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "o", "--debug-video", copy / "video.mp4"),
+                   "is an input")
+    assert all(p.read_bytes() == b for p, b in before.items())
+    one_line_error(vifusion("run", "--drive", copy, "--out", "/"), "the root is not an output folder")
+
+
 def test_no_debug_video_is_left_when_the_frames_end_in_an_error(copy, tmp_path):
     """The drive's video as a folder of pictures, the tenth unreadable: the run stops with one
     line, and the debug video is not left under its name with the nine frames before (a review

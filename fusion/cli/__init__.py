@@ -209,6 +209,19 @@ def write_table(df, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def refuse_inputs_as_outputs(outputs, inputs) -> None:
+    """An output path that is one of the command's input files (after links) is refused
+    before any work: it would be overwritten (a review: ``vifusion can X.csv --out X.csv``
+    replaced the recording with its decode, ``--debug-video`` equal to ``--video`` the video)."""
+    from ..errors import InputError
+
+    given = {os.path.realpath(p): p for p in inputs if p is not None}
+    for out in outputs:
+        if out is not None and os.path.realpath(out) in given:
+            raise InputError(f"{out}: is an input of this command ({given[os.path.realpath(out)]}) and would be "
+                             "overwritten: write the output elsewhere")
+
+
 def write_tables(df, stem: Path) -> None:
     """``STEM.csv`` and ``STEM.parquet`` (:func:`write_table`)."""
     for suffix in (".csv", ".parquet"):

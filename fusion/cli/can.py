@@ -20,6 +20,7 @@ from imu.samples import never_seen
 
 from ..config import Table, parse_can, parse_imu, read_toml
 from ..errors import ConfigError, InputError
+from . import refuse_inputs_as_outputs
 
 OUT_SUFFIXES = (".parquet", ".csv")
 
@@ -64,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     mount, mapping = load_can_config(args.config)
     if args.dbc is not None:
         mapping = dataclasses.replace(mapping, dbc_path=Path(args.dbc))
+    refuse_inputs_as_outputs([out], [args.log, args.config, mapping.dbc_path])
     t0 = time.perf_counter()
     table, summary = read_log(args.log, mapping, mount, progress=not args.quiet)
     elapsed = time.perf_counter() - t0

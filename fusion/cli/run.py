@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import workers_arg, write_tables
+from . import refuse_inputs_as_outputs, workers_arg, write_tables
 
 __all__ = ["add_parser", "run"]
 
@@ -123,12 +123,14 @@ def _run(args: argparse.Namespace) -> int:
     truth = read_truth(files.truth)
     imu_truth = read_truth(files.imu_truth, columns=("t_s",))
     out = args.out.resolve()          # '--out .' names the folder it is
-    tmp = out.with_name(out.name + ".partial")
     check_out(out)
+    tmp = out.with_name(out.name + ".partial")
     if args.debug_video is not None:
         from vision.debug import DebugWriter
 
         DebugWriter.check(args.debug_video)
+        refuse_inputs_as_outputs([args.debug_video], [files.video, files.frames, files.can_log, files.dbc, files.config,
+                                                      files.truth, files.imu_truth, args.calibration])
         if out in args.debug_video.resolve().parents:
             raise InputError(f"--debug-video {args.debug_video} is inside --out {out}, which the run replaces: "
                              "write it elsewhere")
@@ -311,6 +313,8 @@ def check_out(out: Path) -> None:
     with anything else in it is left alone, not emptied."""
     from ..errors import InputError
 
+    if not out.name:
+        raise InputError(f"--out {out}: the root is not an output folder")
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out} is a file, not a folder")
     if out.is_dir():

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from . import workers_arg, write_table
+from . import refuse_inputs_as_outputs, workers_arg, write_table
 
 
 def add_parser(sub) -> None:
@@ -59,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.out}: is a directory, expected a file name")
     if args.debug_video is not None:
         DebugWriter.check(args.debug_video)
+    refuse_inputs_as_outputs([args.out, args.debug_video], [args.video, args.frames, args.config, args.can, args.dbc])
 
     cfg = load_config(args.config)
     table = dict(cfg.extra.get("vision") or {})
