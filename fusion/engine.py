@@ -391,7 +391,7 @@ class FusionStream:
         """The measurements of sample ``s`` after the propagation to its time: wheel speed, then
         the gravity reference (which needs the speed for its centripetal term: not before the
         first one)."""
-        speed_refused = self._speed_update(s.speed) if s.speed_fresh else False
+        speed_refused = self._speed_update(s.speed, s) if s.speed_fresh else False
         gravity_refused = (self._speed_initialized and s.index % self.options.gravity_every == 0
                            and not self.ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate, s.r_scale))
         self._tally(s, speed_refused, gravity_refused)
@@ -414,7 +414,12 @@ class FusionStream:
                 self._sample_updates(sample)
             return
         offset, t_fit = self._lane_fit
-        follow = t1 - t_fit > self.options.lane_fit_hold_s  # no lane fit: the road turns with the vehicle
+        # no lane fit, or no wheel speed yet (the road's heading rate is kappa v): the road turns
+        # with the vehicle. With v taken as 0 the road stood still while the gyros turned the
+        # vehicle, and the vision's yaw pulled the world roll through the heading kinematics: 11
+        # deg off with a sigma of 1.8 after 6 s without a wheel speed, every gravity update
+        # refused from then on (a review)
+        follow = t1 - t_fit > self.options.lane_fit_hold_s or not self._speed_initialized
         u = ImuStep(t1 - t0, gyro, follow, offset, vision_gap=t1 - self._last_vision_t > _VISION_GAP_S)
         roll0 = ekf.x[S.ROLL_W]
         if sample is None:
@@ -432,14 +437,18 @@ class FusionStream:
             self.steps.append(StepRecord(t1, ekf.F.copy(), ekf.x_prior.copy(), ekf.P_prior.copy(),
                                          ekf.x_prior.copy(), ekf.P_prior.copy(), imu_index))
 
-    def _speed_update(self, speed: float) -> bool:
-        """Wheel speed; the first one (and one after a run of rejections) sets the state.
+    def _speed_update(self, speed: float, s: _ImuSample | None = None) -> bool:
+        """Wheel speed; the first one (and one after a run of rejections) sets the state; the
+        first one after the start also the attitude relative to level (:meth:`_level_again`).
         Whether it was refused."""
         ekf, n = self.ekf, self.options.noise
         if not self._speed_initialized or self._speed_rejected_in_row >= self.options.reacquire_after_rejections:
+            first_after_start = not self._speed_initialized and bool(self._hist)
             self._reset(((S.SPEED, speed, n.speed_meas_m_s), (S.ACCEL_X, 0.0, n.init_accel_m_s2)))
             self.counts["speed_reacquired"] += self._speed_initialized
             self._speed_initialized, self._speed_rejected_in_row = True, 0
+            if first_after_start and s is not None:
+                self._level_again(s, speed)
             return False
         if ekf.update_speed(speed):
             self._speed_rejected_in_row = 0
@@ -566,6 +575,37 @@ class FusionStream:
         if bank:
             states += [(S.BANK, x[S.ROLL_W] - angles[0], n.init_bank_rad), (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s)]
         self._reset(tuple(states))
+
+    def _level_again(self, s: _ImuSample, v: float) -> None:
+        """The first wheel speed after the start: the world roll from this sample's specific
+        force with the centripetal term taken out (as :meth:`_init_from_accel` does with a
+        speed), the bank moved with it so that the roll relative to the road stays the
+        vision's, and their common direction reopened to the starting sigma. Before the speed
+        the gravity reference waits, and on a leaning motorcycle nothing measures the world
+        roll; the vision's pitch and yaw, coupled to it through the bank, had taken it 18 deg
+        off with a sigma of 2.3 deg after 6 s without a wheel speed, and every gravity update
+        after it was refused as an outlier (a review found it). The pitch keeps its estimate:
+        the accelerometer measured it all along (at constant speed), and one sample's
+        ``-f_x / g``, with the rider's pitching in it, set the IMU-only filter off by 19 deg."""
+        ekf, n = self.ekf, self.options.noise
+        f, r = s.accel - ekf.x[S.ACCEL_BIAS], s.gyro[2] - ekf.x[S.GYRO_BIAS_Z]
+        if ekf.has_pitch_rate:
+            roll = math.atan2(f[1] - v * r, f[2] + v * (s.gyro[1] - ekf.x[S.GYRO_BIAS_Y]))
+        else:
+            roll = math.asin(max(-1.0, min(1.0, (f[1] - v * r) / GRAVITY_M_S2)))
+        e = np.zeros(DIM_X)
+        e[[S.ROLL_W, S.BANK]] = 1.0
+        shift, grow = (roll - ekf.x[S.ROLL_W]) * e, n.init_angle_rad**2 * np.outer(e, e)
+
+        def level(x, P):
+            x += shift
+            P += grow
+
+        level(ekf.x, ekf.P)
+        if self.record and self.steps:      # part of the last step's prediction, as _reset's
+            st = self.steps[-1]
+            st.x_prior, st.P_prior = st.x_prior.copy(), st.P_prior.copy()
+            level(st.x_prior, st.P_prior)
 
     def _reset(self, states) -> None:
         """Give states ``(index, value, sigma)`` new values, uncorrelated with the rest.

@@ -185,6 +185,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         warnings.append(f"the IMU samples have {counts['imu_gaps']} gap(s) longer than {options.max_imu_gap_s:g} s: "
                         "the filter started again after each, keeping the IMU biases")
     warnings += imu_setup_warnings(accel, speed_known, counts["gravity_rejected"], options.gravity_every)
+    warnings += speed_span_warnings(t, speed_known, np.asarray(fresh, dtype=bool) & np.isfinite(speed))
     return FusedRun(table, counts, smooth, rel_cov[1], warnings)
 
 
@@ -219,6 +220,29 @@ def imu_setup_warnings(accel_m_s2: np.ndarray, speed_known: np.ndarray, gravity_
     elif attempted and gravity_refused > GRAVITY_REFUSED_WARN * attempted:
         out.append(f"{gravity_refused} of {attempted} gravity updates refused as outliers: the accelerometer "
                    "disagrees with the model (check [imu] axes and position_m, the accelerometer's units)")
+    return out
+
+
+#: A wheel speed that starts this long after the IMU samples, or ends this long before them,
+#: is said (s).
+SPEED_SPAN_WARN_S = 1.0
+
+
+def speed_span_warnings(t_s: np.ndarray, speed_known: np.ndarray, fresh: np.ndarray) -> list[str]:
+    """A wheel speed that starts late or stops early (a CAN log's gap finder sees only gaps
+    between frames): before it the world roll, pitch and bank rest on the gyros and the vision;
+    after it the speed is held and the gravity reference's centripetal term with it."""
+    out = []
+    if not len(t_s) or not np.any(speed_known):
+        return out                      # no wheel speed at all: imu_setup_warnings says so
+    first = t_s[np.argmax(speed_known)]
+    if first - t_s[0] > SPEED_SPAN_WARN_S:
+        out.append(f"no wheel speed for the first {first - t_s[0]:.1f} s of the IMU samples: until it the gravity "
+                   "reference waited and the world roll, pitch and bank rest on the gyros and the vision")
+    last = t_s[np.flatnonzero(fresh)[-1]] if np.any(fresh) else first
+    if t_s[-1] - last > SPEED_SPAN_WARN_S:
+        out.append(f"no wheel speed in the last {t_s[-1] - last:.1f} s of the IMU samples: the filter carried the "
+                   "last speed on (its acceleration state), and the gravity reference with it")
     return out
 
 

@@ -615,6 +615,38 @@ def test_an_output_that_is_an_input_is_refused(copy, tmp_path):
     one_line_error(vifusion("run", "--drive", copy, "--out", "/"), "the root is not an output folder")
 
 
+def test_a_wheel_speed_that_starts_late(tmp_path):
+    """The bundled drive with its wheel speed missing for the first 6 s (of 12). Before it the
+    filter took the speed as 0: the road stood still while the gyros turned the vehicle, and
+    the vision's yaw pulled the world roll 18 deg off with a sigma of 2.3 deg; from the first
+    speed on every gravity update was refused and the bank ended 18 deg off, with only a
+    warning blaming the IMU's axes (a review). Now the road turns with the vehicle until the
+    speed comes, the first speed levels the world roll again from the accelerometer, and the
+    run says the speed started late. Bar: the bank's RMS error over the last 3 s under 1 deg
+    (measured 0.72, still converging from the accelerometer's level 3 s after the speed came;
+    the run with the speed all along 0.09; before the fix 18)."""
+    import can as pycan
+
+    d = tmp_path / "late"
+    shutil.copytree(SAMPLE_DRIVE, d)
+    log = next(d.glob("can.*"))
+    msgs = list(pycan.LogReader(log))
+    t0 = msgs[0].timestamp
+    log.unlink()
+    with pycan.Logger(d / "can.blf") as w:
+        for m in msgs:
+            if not (m.arbitration_id == 0x122 and m.timestamp < t0 + 6.0):
+                w.on_message_received(m)
+    r = vifusion("run", "--drive", d, "--out", tmp_path / "out", "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    assert "no wheel speed for the first 6.0 s" in r.stderr and "gravity updates refused" not in r.stderr, r.stderr
+    f = pd.read_csv(tmp_path / "out" / "fused.csv")
+    truth = pd.read_csv(d / "truth.csv")
+    end = f[f["t_s"] > f["t_s"].iloc[-1] - 3.0]
+    err = end["bank_deg"] - np.interp(end["t_s"], truth["t_s"], truth["bank_deg"])
+    assert np.sqrt(np.mean(err**2)) < 1.0, np.sqrt(np.mean(err**2))
+
+
 def test_no_debug_video_is_left_when_the_frames_end_in_an_error(copy, tmp_path):
     """The drive's video as a folder of pictures, the tenth unreadable: the run stops with one
     line, and the debug video is not left under its name with the nine frames before (a review
