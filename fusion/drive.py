@@ -202,7 +202,7 @@ def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str,
     from vision.video import FrameSource
 
     try:
-        src = FrameSource(video)
+        src = FrameSource(video, frames["frame"])
         if src.files is not None:
             n_video = len(src.files)
         else:

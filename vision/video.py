@@ -11,7 +11,7 @@ import itertools
 import math
 import os
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import cv2
 import numba as nb
@@ -51,6 +51,9 @@ class FrameSource:
     path : str or Path
         Video file, or folder of ``.png`` / ``.jpg`` / ``.jpeg`` files (name order; numbered
         names at their number less the first's, so that a missing picture is a missing frame).
+    listed : iterable of int, optional
+        The frame numbers ``frames.csv`` lists, which tell numbered names from names in order
+        (:func:`_by_number`).
 
     Raises
     ------
@@ -58,7 +61,7 @@ class FrameSource:
         Missing path, a folder without pictures, a file OpenCV cannot open.
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, listed: Iterable[int] | None = None) -> None:
         self.path = Path(path)
         if not self.path.exists():
             raise VisionError(f"{self.path}: no such video file or folder")
@@ -68,7 +71,7 @@ class FrameSource:
             files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
             if not files:
                 raise VisionError(f"{self.path}: folder has no .png or .jpg frames")
-            self.files = _by_number(files)
+            self.files = _by_number(files, None if listed is None else sorted(set(int(f) for f in listed)))
         else:
             cap = cv2.VideoCapture(str(self.path))
             ok = cap.isOpened()
@@ -96,17 +99,36 @@ class FrameSource:
             yield img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
 
 
-def _by_number(files: list[Path]) -> list[Path | None]:
-    """Pictures in name order, or, when every name is a frame number (``000123.png``: numbers
-    that skip at most as many values as there are pictures), at their number less the first's:
-    a picture missing from a numbered sequence is then a missing frame, not a shift of every
-    later frame onto the time of the one before it. Names that are times (nanoseconds, as some
-    datasets write them) stay in name order."""
+#: Numbered pictures spanning more numbers than this many per picture are not taken as frame
+#: numbers (a list of that many entries is built): names that are times in ns stay in name order.
+_MAX_NUMBERS_PER_PICTURE = 100
+
+
+def _by_number(files: list[Path], listed: list[int] | None = None) -> list[Path | None]:
+    """Pictures in name order, or, when every name is a frame number (``000123.png``), at their
+    number less the first's: a picture missing from a numbered sequence is then a missing frame,
+    not a shift of every later frame onto the time of the one before it. Names that are times
+    (nanoseconds, as some datasets write them) stay in name order.
+
+    Which one the names are is decided by ``listed``, the frame numbers ``frames.csv`` lists,
+    when it is given and tells: numbers it all names (and not all positions) are frame numbers
+    (a folder of every third frame named by its original number, listed 0, 3, 6, ...: in name
+    order picture k had taken frame k's time, a review found); positions it all names (and not
+    all numbers) are name order. Otherwise numbers that skip at most as many values as there are
+    pictures are frame numbers."""
     if not all(p.stem.isdigit() for p in files):
         return files
     numbers = [int(p.stem) for p in files]
     first, span = min(numbers), max(numbers) - min(numbers) + 1
-    if len(set(numbers)) < len(files) or span > 2 * len(files):
+    if len(set(numbers)) < len(files) or span > _MAX_NUMBERS_PER_PICTURE * len(files):
+        return files
+    by_number = span <= 2 * len(files)
+    if listed:
+        numbered = {n - first for n in numbers}
+        as_numbers, as_positions = set(listed) <= numbered, listed[-1] < len(files) and listed[0] >= 0
+        if as_numbers != as_positions:
+            by_number = as_numbers
+    if not by_number:
         return files
     out: list[Path | None] = [None] * span
     for p, n in zip(files, numbers):
@@ -208,8 +230,8 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
 
     if int(workers) < 1:
         raise VisionError(f"workers must be at least 1, got {workers}")
-    src = FrameSource(video)
     want = {int(f): float(t) for f, t in zip(frames["frame"], frames["t_s"])}
+    src = FrameSource(video, want)
     speeds = ({int(f): float(v) for f, v in zip(frames["frame"], frames["speed_m_s"])}
               if "speed_m_s" in frames else None)
     wanted = sorted(want)
