@@ -46,6 +46,20 @@ class ReportInputs:
     imu_calibration: dict | None = None
 
 
+def _truth_covers_s(fused: pd.DataFrame, truth: pd.DataFrame, t0: float, angles, every: bool = False) -> float:
+    """Seconds of the fused samples from ``t0`` on at which the truth has a value of one of
+    ``angles`` estimated (``every``: of all of them): the samples' count times their median
+    interval."""
+    t = fused["t_s"].to_numpy(dtype=float)
+    tr = interp_truth(truth, t)
+    cols = [f"{a}_deg" for a in angles if f"{a}_deg" in tr and f"{a}_deg" in fused]
+    if not cols or len(t) < 2:
+        return 0.0
+    has = np.isfinite(tr[cols].to_numpy(dtype=float))
+    ok = (has.all(axis=1) if every else has.any(axis=1)) & (t >= t0)
+    return float(np.sum(ok) * np.median(np.diff(t)))
+
+
 #: Share of samples whose NEES should lie inside its 95 % band (issue 5's bar): below it the
 #: report warns that the fused sigma does not describe the errors against the truth.
 CONSISTENT_SHARE = 0.9
@@ -68,6 +82,10 @@ def summarise(r: ReportInputs) -> dict:
     if r.truth is not None and len(f) and not f["t_s"].iloc[-1] - t0 >= MIN_SCORED_S:
         out["warnings"] = [*r.warnings, f"no RMSE against truth: the drive has under {MIN_SCORED_S:g} s after the "
                                         f"first {CONVERGENCE_S:g} s of convergence"]
+    elif r.truth is not None and len(f) and (covered := _truth_covers_s(f, r.truth, t0, ANGLES)) < MIN_SCORED_S:
+        # a truth cut short or empty where the run is scored: said, not a table of nulls (a review)
+        out["warnings"] = [*r.warnings, f"no RMSE against truth: it has values for {covered:.1f} s of the drive "
+                                        f"after the first {CONVERGENCE_S:g} s of convergence, under {MIN_SCORED_S:g} s"]
     elif r.truth is not None and len(f):
         acc = {"fused": rmse_table(f, r.truth, t0)}
         if r.vision is not None and len(r.vision):
@@ -81,7 +99,12 @@ def summarise(r: ReportInputs) -> dict:
         if r.imu_only is not None:
             acc["imu_only"] = rmse_table(r.imu_only, r.truth, t0, angles=("roll_world", "pitch_world"))
         out["rmse_deg"] = acc
-        if all(f"{a}_deg" in r.truth for a in ("roll", "pitch", "yaw", "bank")):
+        nees_angles = ("roll", "pitch", "yaw", "bank")
+        if all(f"{a}_deg" in r.truth for a in nees_angles) and \
+                _truth_covers_s(f, r.truth, t0, nees_angles, every=True) < MIN_SCORED_S:
+            out["warnings"] = [*out["warnings"], f"no NEES against the truth: it has roll, pitch, yaw and bank together "
+                               f"for under {MIN_SCORED_S:g} s of the scored drive"]
+        elif all(f"{a}_deg" in r.truth for a in nees_angles):
             c = consistency(f, r.truth, r.cov, t0)
             out["consistency"] = asdict(c)
             if c.fraction_inside < CONSISTENT_SHARE:

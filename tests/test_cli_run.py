@@ -647,6 +647,26 @@ def test_a_wheel_speed_that_starts_late(tmp_path):
     assert np.sqrt(np.mean(err**2)) < 1.0, np.sqrt(np.mean(err**2))
 
 
+def test_a_truth_that_does_not_cover_the_scored_drive_is_said(tmp_path):
+    """A truth cut to its first 0.33 s, or without a bank after 1 s: one warning saying so and
+    no RMSE or NEES computed from nothing. Before, numpy's 'Mean of empty slice' warnings went
+    to stderr, summary.json held nulls without a word and the page said 'nan % of samples'
+    (a review)."""
+    truth = pd.read_csv(SAMPLE_DRIVE / "truth.csv")
+    truth.iloc[:33].to_csv(tmp_path / "short.csv", index=False)
+    nobank = truth.copy()
+    nobank.loc[nobank["t_s"] > nobank["t_s"].iloc[0] + 1.0, "bank_deg"] = np.nan
+    nobank.to_csv(tmp_path / "nobank.csv", index=False)
+    for name, said in (("short.csv", "no RMSE against truth: it has values for 0.0 s"),
+                       ("nobank.csv", "no NEES against the truth")):
+        out = tmp_path / name.replace(".csv", "")
+        r = vifusion("run", "--truth", tmp_path / name, "--out", out, "--quiet", "--no-report")
+        assert r.returncode == 0 and "RuntimeWarning" not in r.stderr, r.stderr
+        summary = json.loads((out / "report" / "summary.json").read_text())
+        assert any(said in w for w in summary["warnings"]), summary["warnings"]
+        assert "consistency" not in summary
+
+
 def test_no_debug_video_is_left_when_the_frames_end_in_an_error(copy, tmp_path):
     """The drive's video as a folder of pictures, the tenth unreadable: the run stops with one
     line, and the debug video is not left under its name with the nine frames before (a review
