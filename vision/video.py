@@ -152,10 +152,23 @@ def count_frames(path: str | os.PathLike) -> int:
     return n
 
 
+#: The columns of ``vision.csv`` that are the estimate: empty (NaN) on a frame without a valid one.
+ESTIMATE_COLUMNS = (
+    "roll_deg", "pitch_deg", "yaw_deg", "roll_sigma_deg", "pitch_sigma_deg", "yaw_sigma_deg",
+    "curvature_1_m", "curvature_sigma_1_m", "roll_lookahead_m", "pitch_per_twist_m", "yaw_per_twist_m",
+    "road_twist_deg_per_m", "road_twist_sigma_deg_per_m", *TWIST_RESPONSE_COLUMNS, "road_twist_bank_change_deg",
+    "lateral_offset_m", "line_spacing_m",
+)
+
+
 def vision_row(t_s: float, frame: int, est: VisionEstimate, ms: float = math.nan) -> dict:
-    """One row of ``vision.csv`` (:data:`VISION_COLUMNS`): angles in degrees, units in the names."""
+    """One row of ``vision.csv`` (:data:`VISION_COLUMNS`): angles in degrees, units in the names.
+    On a frame without a valid estimate the estimate's columns (:data:`ESTIMATE_COLUMNS`) are
+    empty: a rejected fit's angles, and a curvature of 0 +- 0, had been written there for a
+    reader who does not look at ``valid`` (a review); what the frame showed (lines, vanishing
+    point, edge residual) and ``reason`` stay."""
     deg = math.degrees
-    return {
+    row = {
         "t_s": float(t_s), "frame": int(frame),
         "roll_deg": deg(est.roll_rad), "pitch_deg": deg(est.pitch_rad), "yaw_deg": deg(est.yaw_rad),
         "valid": int(bool(est.valid)),
@@ -163,17 +176,18 @@ def vision_row(t_s: float, frame: int, est: VisionEstimate, ms: float = math.nan
         "yaw_sigma_deg": deg(est.yaw_sigma_rad),
         "curvature_1_m": est.curvature_1_m, "curvature_sigma_1_m": est.curvature_sigma_1_m,
         "roll_lookahead_m": est.roll_lookahead_m,
-        # (0 means "no uniform-twist response" on a valid frame; nothing on an invalid one)
-        "pitch_per_twist_m": est.pitch_per_twist_m if est.valid else math.nan,
-        "yaw_per_twist_m": est.yaw_per_twist_m if est.valid else math.nan,
+        "pitch_per_twist_m": est.pitch_per_twist_m, "yaw_per_twist_m": est.yaw_per_twist_m,
         "road_twist_deg_per_m": deg(est.road_twist_rad_m), "road_twist_sigma_deg_per_m": deg(est.road_twist_sigma_rad_m),
         **dict(zip(TWIST_RESPONSE_COLUMNS, est.twist_response)),
-        "road_twist_bank_change_deg": deg(est.road_twist_used) if est.valid else math.nan,
+        "road_twist_bank_change_deg": deg(est.road_twist_used),
         "lateral_offset_m": est.lateral_offset_m, "line_spacing_m": est.line_spacing_m,
         "n_lines": est.n_lines, "roll_equation": est.roll_equation,
         "vp_x_px": est.vp_px[0], "vp_y_px": est.vp_px[1], "edge_rms_px": est.edge_rms_px,
         "iterations": est.iterations, "warps": est.warps, "ms": ms, "reason": est.reason,
     }
+    if not est.valid:
+        row.update(dict.fromkeys(ESTIMATE_COLUMNS, math.nan))
+    return row
 
 
 def default_workers() -> int:
