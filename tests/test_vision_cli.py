@@ -261,3 +261,48 @@ def test_a_folder_of_every_third_frame_named_by_number(tmp_path):
     src = FrameSource(tmp_path, range(10))          # frames.csv by position
     assert {i: int(img[0, 0, 0]) for i, img in _frames_from(src, 0)} == {k: 3 * k for k in range(10)}
     assert len(FrameSource(tmp_path)) == 10        # no listing: name order, as before
+
+
+def test_the_debug_video_is_the_tables_run(tmp_path):
+    """With ``--debug-video`` the estimator gets the same grey as without (a video's luma
+    plane): it had got OpenCV's colour frames' grey, a few levels off, and the table of a run
+    with a debug video was another run's (a review: 7 of 10 KITTI frames valid against 2). The
+    debug video's frames all have one size, the BEV panel fitted into half the frame's width
+    (the whole picture had been scaled to the first frame's size, stretching the camera half)."""
+    from fusion.cli import main as cli_main
+
+    d = Path(__file__).resolve().parents[1] / "fusion" / "data" / "sample_drive"
+    frames = pd.read_csv(d / "frames.csv").iloc[:20]
+    frames.to_csv(tmp_path / "frames.csv", index=False, float_format="%.9f")
+    common = ["vision", "--video", str(d / "video.mp4"), "--frames", str(tmp_path / "frames.csv"),
+              "--config", str(d / "config.toml"), "--quiet", "--workers", "1"]
+    assert cli_main([*common, "--out", str(tmp_path / "plain.csv")]) == 0
+    assert cli_main([*common, "--out", str(tmp_path / "dbg.csv"), "--debug-video", str(tmp_path / "dbg.mp4")]) == 0
+    a, b = pd.read_csv(tmp_path / "plain.csv"), pd.read_csv(tmp_path / "dbg.csv")
+    pd.testing.assert_frame_equal(a.drop(columns="ms"), b.drop(columns="ms"))
+    cap = cv2.VideoCapture(str(tmp_path / "dbg.mp4"))
+    sizes = set()
+    while True:
+        ok, pic = cap.read()
+        if not ok:
+            break
+        sizes.add(pic.shape[:2])
+    cap.release()
+    assert sizes == {(360, 640 + 320)}
+
+
+def test_the_debug_horizon_stays_where_the_distortion_is_one_to_one():
+    """A lens whose radial polynomial folds back inside the ±60 deg of road directions drawn
+    (Udacity's k1 = -0.27, k3 = -0.24): the horizon is drawn only where the distorted radius
+    still grows, so that it does not cross itself (u had run -9569, -1052, 937, ..., -94, 2402)."""
+    from vision.camera import Camera
+    from vision.debug import _monotonic_radius
+
+    cam = Camera(1280, 720, 1156.9, 1152.1, 665.9, 388.0, (-0.2416, -0.0527, -0.0012, 0.0002, 0.0))
+    folding = Camera(1280, 720, 1156.9, 1152.1, 665.9, 388.0, (-0.27, 0.0, 0.0, 0.0, -0.24))
+    r = _monotonic_radius(folding)
+    assert 0.5 < r < 1.5
+    x = np.linspace(0.0, r * 0.999, 200)
+    xd, _ = folding.distort_normalized(x, np.zeros_like(x))
+    assert np.all(np.diff(xd) > 0)
+    assert _monotonic_radius(cam) > 1.0

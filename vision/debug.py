@@ -40,7 +40,10 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
         frame = np.clip(np.nan_to_num(frame.astype(np.float32)), 0, 255).astype(np.uint8)
     H, W = frame.shape[:2]
     dbg = est.debug
-    bev_panel = np.zeros((H, max(1, H // 2), 3), np.uint8)
+    # the BEV panel has one size for every frame (half the frame's width), the BEV fitted into
+    # it: its picture's width varies from frame to frame, and the writer had scaled the whole
+    # picture, camera half too, to the first frame's size (1.3-1.8 times wide on KITTI, a review)
+    bev_panel = np.zeros((H, max(2, W // 2), 3), np.uint8)
     if dbg is not None and getattr(dbg, "bev", None) is not None:
         bev = dbg.bev
         # Marker edges in the frame (through the BEV's homography, then the camera's distortion).
@@ -78,8 +81,11 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
                     if np.isfinite(v) and 0 <= v < b.shape[0]:
                         cv2.line(b, (0, int(round(v))), (b.shape[1] - 1, int(round(v))), YELLOW, 1)
             cv2.circle(b, (int(round(bev.u0)), b.shape[0] - 1), 4, MAGENTA, -1)
-            scale = H / b.shape[0]
-            bev_panel = cv2.resize(b, (max(1, int(round(b.shape[1] * scale))), H), interpolation=cv2.INTER_NEAREST)
+            PH, PW = bev_panel.shape[:2]
+            scale = min(PH / b.shape[0], PW / b.shape[1])
+            bw, bh = max(1, min(PW, int(round(b.shape[1] * scale)))), max(1, min(PH, int(round(b.shape[0] * scale))))
+            x0, y0 = (PW - bw) // 2, (PH - bh) // 2
+            bev_panel[y0:y0 + bh, x0:x0 + bw] = cv2.resize(b, (bw, bh), interpolation=cv2.INTER_NEAREST)
     # Vanishing point and horizon.
     if est.valid and all(math.isfinite(v) for v in est.vp_px):
         vx, vy = est.vp_px
@@ -91,6 +97,12 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
             a = np.radians(np.linspace(-60, 60, 25))
             d = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], -1) @ R     # in cp
             d = d[d[:, 2] > 1e-6]
+            if camera.has_distortion and d.shape[0]:
+                # only where the distortion model still grows with the radius: past it the
+                # polynomial folds back and the horizon crossed itself (Udacity's k1 -0.27, k3
+                # -0.24: u = -9569, -1052, 937, ..., a review)
+                r = np.hypot(d[:, 0] / d[:, 2], d[:, 1] / d[:, 2])
+                d = d[r < _monotonic_radius(camera)]
             if d.shape[0] > 1:
                 uv = camera.project(d)
                 good = np.all(np.isfinite(uv), 1) & (np.abs(uv).max(1) < 1e5)
@@ -112,6 +124,14 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
     for i, text in enumerate(lines):
         cv2.putText(frame, text, (8, step * (i + 1)), cv2.FONT_HERSHEY_SIMPLEX, scale, WHITE, 1, cv2.LINE_AA)
     return np.concatenate([frame, bev_panel], axis=1)
+
+
+def _monotonic_radius(camera: Camera) -> float:
+    """The normalized radius up to which ``camera``'s distortion grows with the radius."""
+    r = np.linspace(0.0, 4.0, 801)
+    xd, yd = camera.distort_normalized(r, np.zeros_like(r))
+    falls = np.flatnonzero(np.diff(np.hypot(xd, yd)) <= 0)
+    return float(r[falls[0]]) if len(falls) else math.inf
 
 
 class DebugWriter:
@@ -144,13 +164,15 @@ class DebugWriter:
 
     def write(self, image: np.ndarray, est: VisionEstimate, t_s: float | None = None) -> None:
         pic = render_debug(image, est, self.camera, t_s)
+        if pic.shape[0] % 2 or pic.shape[1] % 2:   # the codecs take even sizes (an odd row was cut)
+            pic = cv2.copyMakeBorder(pic, 0, pic.shape[0] % 2, 0, pic.shape[1] % 2, cv2.BORDER_CONSTANT)
         if self.writer is None:
             self.size = (pic.shape[1], pic.shape[0])
             fourcc = cv2.VideoWriter_fourcc(*("MJPG" if self.path.suffix.lower() == ".avi" else "mp4v"))
             self.writer = cv2.VideoWriter(str(self.tmp), fourcc, self.fps, self.size)
             if not self.writer.isOpened():
                 raise VisionError(f"{self.path}: OpenCV cannot write this video")
-        if (pic.shape[1], pic.shape[0]) != self.size:
+        if (pic.shape[1], pic.shape[0]) != self.size:     # a frame of another size: scaled to the first's
             pic = cv2.resize(pic, self.size)
         self.writer.write(pic)
 

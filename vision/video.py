@@ -435,8 +435,10 @@ def _estimate_piece(src: FrameSource, wanted: list[int], times: dict, setup, deb
     rows, n_read, last_done = [], 0, None
     wanted_set, last = set(wanted), (wanted[-1] if wanted else -1)
     try:
-        # the debug video draws on the colour frames; the estimator itself needs grey only
-        for i, img in _frames_from(src, wanted[0] if wanted else 0, luma=writer is None):
+        # the estimator's grey with a debug video too (it drew on OpenCV's colour frames, and
+        # the estimator got their grey, a few levels off the luma: another run, 7 of 10 KITTI
+        # frames valid against 2, a review); the debug video shows the grey the vision saw
+        for i, img in _frames_from(src, wanted[0] if wanted else 0, luma=True):
             n_read = i + 1
             if i > last:
                 break

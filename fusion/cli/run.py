@@ -198,6 +198,8 @@ def _run(args: argparse.Namespace) -> int:
     if vstats.get("frames_missing"):
         warnings.append(f"{files.video}: {vstats['frames_read']} frames could be read; {vstats['frames_missing']} of "
                         f"the {len(frames)} frames that frames.csv lists are not among them (not processed)")
+    if args.debug_video is not None and not len(vision):
+        warnings.append(f"no debug video written to {args.debug_video}: no frame was processed")
     n_valid = int(vision["valid"].sum()) if len(vision) else 0
     if n_valid < VISION_VALID_WARN * len(vision) or not len(vision):
         reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts() if len(vision) else None

@@ -83,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
     missing = f"; {stats['frames_missing']} listed frames not in the video" if stats["frames_missing"] else ""
     print(f"wrote {args.out}: {n} frames, {stats['valid']} valid ({100 * stats['valid'] / max(n, 1):.0f} %), "
           f"median {stats['median_ms']:.1f} ms/frame ({options.method}, {stats['workers']} worker(s)){missing}"
-          + (f"; debug video {args.debug_video}" if args.debug_video else "")
+          + ((f"; debug video {args.debug_video}" if n else "; no debug video written (no frame was processed)")
+             if args.debug_video else "")
           + ("; road-twist map off (no wheel speed: --can LOG)" if options.road_twist and args.can is None else ""))
     return 0
 
