@@ -9,6 +9,7 @@ the same drive and workers. Without it the map is off and the summary line says 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from . import refuse_inputs_as_outputs, workers_arg, write_table
@@ -97,7 +98,7 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
 
     from imu import read_log
 
-    from ..drive import check_overlap
+    from ..drive import check_overlap, frames_outside_warning
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
     from ..pipeline import frame_speeds
@@ -112,7 +113,16 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
     imu, _ = read_log(args.can, mapping, cfg.imu, progress=not args.quiet)
     t = np.asarray(t_s, dtype=float) + settings.camera_time_offset_s
     check_overlap(t, imu["t_s"].to_numpy(), str(args.frames or args.video), str(args.can))
+    # as vifusion run says them (a truncated log had gone without a word here, a review)
+    if not imu.attrs.get("complete", True):
+        print(f"warning: {args.can}: log incomplete, read up to {imu['t_s'].iloc[-1]:.1f} s: the frames after it "
+              "get no wheel speed", file=sys.stderr)
+    outside = frames_outside_warning(t, imu["t_s"].to_numpy(), str(args.frames or args.video))
+    if outside:
+        print(f"warning: {outside}", file=sys.stderr)
     speeds = frame_speeds(imu, t)
     if not np.isfinite(speeds).any():
-        raise InputError(f"{args.can}: no wheel speed at any frame (mapped as {mapping.signals.get('speed', '?')})")
+        where = (f"mapped as {mapping.signals['speed']}" if "speed" in mapping.signals
+                 else "not mapped in [can] signals")
+        raise InputError(f"{args.can}: no wheel speed at any frame ({where})")
     return speeds
