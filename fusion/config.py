@@ -191,7 +191,7 @@ def parse_camera(t: Table) -> Camera:
 
 
 def parse_mount(t: Table) -> Mount:
-    h = t.get("height_m", "float", min=1e-3)
+    h = t.get("height_m", "float", min=1e-3, max=20.0)   # a camera 1100 m up is one in millimetres
     tilt = t.get("tilt_deg", "float", min=-89.0, max=89.0)
     x = t.get("x_m", "float", 0.0)
     t.done()

@@ -170,8 +170,12 @@ def test_missing_file(drive, tmp_path):
 
 def test_config_key_of_the_wrong_type(copy, tmp_path):
     cfg = copy / "config.toml"
-    cfg.write_text(cfg.read_text().replace("height_m = 1.1", 'height_m = "tall"'))
+    text = cfg.read_text()
+    cfg.write_text(text.replace("height_m = 1.1", 'height_m = "tall"'))
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "height_m")
+    # millimetres for metres: refused (it ran and found lanes on no frame, a review)
+    cfg.write_text(text.replace("height_m = 1.1", "height_m = 1100"))
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "height_m must be within")
 
 
 def test_no_overlap_between_video_and_can(copy, tmp_path):
