@@ -174,8 +174,11 @@ class LiveFusion:
     def push_vision(self, t_s: float, est: VisionEstimate) -> None:
         """A vision result computed elsewhere (another thread or process)."""
         with self._lock:
-            old = self.stream.counts["vision_too_old"]
-            self.stream.add_vision(t_s + self.settings.camera_time_offset_s, est.rpy_rad,
+            t_cap = t_s + self.settings.camera_time_offset_s
+            # before the first IMU sample the stream drops the oldest queued results itself:
+            # not this result's age (a camera that starts first is no clock fault)
+            old = self.stream.counts["vision_too_old"] if math.isfinite(self.stream.t_s) else math.inf
+            self.stream.add_vision(t_cap, est.rpy_rad,
                                    (est.roll_sigma_rad, est.pitch_sigma_rad, est.yaw_sigma_rad), est.valid,
                                    est.curvature_1_m, est.lateral_offset_m,
                                    est.curvature_sigma_1_m, est.roll_lookahead_m,
@@ -183,7 +186,7 @@ class LiveFusion:
                                    (est.road_twist_rad_m, est.road_twist_sigma_rad_m), est.twist_response)
             if self.stream.counts["vision_too_old"] > old:
                 self._count_in_row("old", f"with results older than the filter's history (this one "
-                                   f"{t_s:.3f} s, the bus at {self.stream.t_s:.3f} s): is the camera's clock "
+                                   f"{t_cap:.3f} s, the bus at {self.stream.t_s:.3f} s): is the camera's clock "
                                    "behind, or camera_time_offset_s wrong? (stream.counts['vision_too_old'])")
             elif est.valid:
                 self._in_row["old"] = 0

@@ -88,6 +88,10 @@ def summarise(r: ReportInputs) -> dict:
                                         f"after the first {CONVERGENCE_S:g} s of convergence, under {MIN_SCORED_S:g} s"]
     elif r.truth is not None and len(f):
         acc = {"fused": rmse_table(f, r.truth, t0)}
+        empty = [a for a, v in acc["fused"].items() if not math.isfinite(v)]
+        if empty:   # a truth column without values where the run is scored: its RMSE is null, said why
+            out["warnings"] = [*out["warnings"], f"no RMSE of {', '.join(empty)} against truth: the truth has no "
+                               f"values of {'it' if len(empty) == 1 else 'them'} after the first {CONVERGENCE_S:g} s"]
         if r.vision is not None and len(r.vision):
             v = r.vision.assign(t_s=r.vision["t_s"] + r.camera_time_offset_s)
             acc["vision"] = rmse_table(v, r.truth, t0, angles=("roll", "pitch", "yaw"),

@@ -171,3 +171,21 @@ def test_force_replaces_a_drive_not_a_folder_of_anything(tmp_path, monkeypatch):
     with pytest.raises(OSError):
         drive_mod.simulate(load_scenario(scen), tmp_path / "half", progress=False, render_video=False)
     assert not (tmp_path / "half.partial").exists() and not (tmp_path / "half").exists()
+
+
+def test_force_does_not_replace_a_recorded_drive(tmp_path):
+    """A recorded drive has the simulator's layout (video.mp4, frames.csv, can.*, a DBC,
+    config.toml): ``--force`` replaced it (a review). Only a folder with the truth only a
+    simulation writes (imu_truth.csv, truth_frames.csv) is a simulated drive."""
+    import shutil
+
+    sample = Path(__file__).resolve().parents[1] / "fusion" / "data" / "sample_drive"
+    rec = tmp_path / "recorded"
+    rec.mkdir()
+    for name in ("video.mp4", "frames.csv", "can.blf", "vifusion_imu.dbc", "config.toml"):
+        shutil.copyfile(sample / name, rec / name)
+    before = sorted(p.name for p in rec.iterdir())
+    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", rec, "--no-video", "--quiet",
+                 "--force")
+    assert r.returncode == 2 and "is not a simulated drive" in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
+    assert sorted(p.name for p in rec.iterdir()) == before

@@ -9,9 +9,10 @@ drive has one, and the biases it ended with. A drive that fails (missing files, 
 skipped with its one-line reason in the table and on stderr, and the next drive starts from
 the last good calibration; the exit status is 2 when no drive succeeded.
 
-A campaign into a folder an earlier campaign wrote replaces it: the old table and the drives'
-old output folders are removed before the first drive (a folder holding anything a run did not
-write is refused first), so that no folder outlives the row that describes it. The table is
+A campaign into a folder an earlier campaign wrote replaces it: the old table and the old output
+folders of this campaign's drives are removed before the first drive (a folder holding anything
+a run did not write is refused first; the folder holding ``--calibration`` is kept until its
+drive replaces it), so that no drive folder outlives the row that describes it. The table is
 written after every drive, the drives not yet run listed as ``not run``; an interrupt (Ctrl-C)
 leaves it so, with the interrupted drive and the rest ``not run: interrupted``.
 """
@@ -77,8 +78,11 @@ def run(args: argparse.Namespace) -> int:
     for name in names:      # refused before any work, not on the drive's turn
         run_cmd.check_out(args.out / name)
     args.out.mkdir(parents=True, exist_ok=True)
+    keep = Path(os.path.abspath(args.calibration)).parents if args.calibration is not None else ()
     for stale in [args.out / "campaign.csv", args.out / "campaign.parquet",
                   *(args.out / n for n in names), *(args.out / (n + ".partial") for n in names)]:
+        if Path(os.path.abspath(stale)) in keep:
+            continue    # --calibration from an earlier campaign's drive: read by the first drive, replaced later
         if stale.is_dir():
             shutil.rmtree(stale)
         elif stale.exists():

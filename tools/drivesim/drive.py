@@ -187,6 +187,10 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         if other:   # --force replaces a drive, not a folder of anything (a review: '--out ..' emptied the parent)
             raise InputError(f"{out_dir} holds files a simulation did not write ({', '.join(other[:3])}"
                              f"{', ...' if len(other) > 3 else ''}): --force replaces only a simulated drive")
+        if not all((out_dir / name).is_file() for name in _SIMULATED_ONLY):
+            # a recorded drive has the same layout; only a simulation writes these
+            raise InputError(f"{out_dir} is not a simulated drive (no {' or '.join(_SIMULATED_ONLY)}): --force "
+                             "replaces only a simulated drive")
     tmp = out_dir.with_name(out_dir.name + ".partial")
     if tmp.exists():
         shutil.rmtree(tmp)
@@ -200,6 +204,11 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         shutil.rmtree(out_dir)
     tmp.rename(out_dir)
     return DriveFiles.in_dir(out_dir, scenario.video.codec, scenario.can.format, DBC_PATH.name)
+
+
+#: Files only a simulation writes (the truth of the IMU and of each frame): a folder without them
+#: is not one :func:`simulate` may replace, whatever else it holds.
+_SIMULATED_ONLY = ("imu_truth.csv", "truth_frames.csv")
 
 
 def _simulator_wrote(name: str) -> bool:
