@@ -136,9 +136,8 @@ class LiveFusion:
         (``counts``): the estimator's road map moves forward only; the previous result is
         returned. A frame whose stamp is not finite, or too far ahead of the bus
         (``stream.counts["vision_future"]``: a bad stamp, a camera clock that stepped), is
-        refused before the estimator, and does not hold back the frames after it; so is a
-        repeat before any frame was taken: an invalid estimate whose ``reason`` says why is
-        returned. Thirty frames in a row refused for their stamps, or with results too old for
+        refused before the estimator, and does not hold back the frames after it: an invalid
+        estimate whose ``reason`` says why is returned. Thirty frames in a row refused for their stamps, or with results too old for
         the filter's history, put a line in ``warnings``. From one thread at a time (the
         estimator keeps the road map between frames)."""
         t_cap = t_s + self.settings.camera_time_offset_s
