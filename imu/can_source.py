@@ -499,7 +499,9 @@ class StreamDecoder:
             seen.add(s.frame_id)
             sources.append(SourceStats(
                 name=s.name, frame_id=s.id_text, frames=sc.frames, rate_hz=_rate(sc.intervals(), sc.span_s()),
-                duplicates=sc.duplicates, unaligned=sc.unaligned, gaps=tuple(sc.gaps), **counts,
+                duplicates=sc.duplicates, unaligned=sc.unaligned, gaps=tuple(sc.gaps),
+                first_s=sc.first_t if sc.clock_frames else math.nan,
+                last_s=sc.last_t if sc.clock_frames else math.nan, **counts,
             ))
         value_col = dict(zip(CHANNELS, VALUE_COLUMNS))
         col_of = {ich: value_col[vch] for vch, ich, _ in self._vmap}

@@ -707,6 +707,8 @@ def _summary(path, plan, mount, frames, stats_raw, per_msg, unaligned, unknown, 
         sources.append(SourceStats(
             name=s.name, frame_id=s.id_text, frames=len(fr.t_s), rate_hz=rate_hz(fr.t_s),
             duplicates=dups, unaligned=unaligned[si], gaps=find_gaps(s.name, fr.t_s, mapping.gap_limit_s),
+            first_s=float(fr.t_s[0]) if len(fr.t_s) else math.nan,
+            last_s=float(fr.t_s[-1]) if len(fr.t_s) else math.nan,
             **{k: v for k, v in counts.items()},
         ))
     channels = []

@@ -112,6 +112,9 @@ class SourceStats:
     bad_timestamp: int = 0
     unaligned: int = 0
     gaps: tuple[Gap, ...] = ()
+    #: Times of the first and last accepted frame (on the current bus clock, live), s.
+    first_s: float = math.nan
+    last_s: float = math.nan
 
     @property
     def skipped(self) -> int:
@@ -135,6 +138,11 @@ class ChannelStats:
     invalid: int
     out_of_range: int
     rate_hz: float
+
+
+#: A source that starts this long after the clock message, or stops this long before it, is
+#: said in the summary (s).
+LATE_START_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -182,6 +190,24 @@ class Summary:
         d["decode_errors"] = self.decode_errors
         return _jsonable(d)
 
+    def span_lines(self) -> list[str]:
+        """Sources that start more than :data:`LATE_START_S` after the clock message or stop
+        that long before it: not gaps between two frames, which the gap finder sees (a wheel
+        speed that came 6 s late had read 'gaps: none')."""
+        clock = next((s for s in self.sources if s.name == self.clock), None)
+        if clock is None or not clock.frames:
+            return []
+        out = []
+        for s in self.sources:
+            if s is clock or not s.frames:
+                continue
+            late, early = s.first_s - clock.first_s, clock.last_s - s.last_s
+            if late > LATE_START_S:
+                out.append(f"source {s.name} starts {late:.1f} s after {self.clock}")
+            if early > LATE_START_S:
+                out.append(f"source {s.name} stops {early:.1f} s before {self.clock}")
+        return out
+
     def lines(self) -> list[str]:
         """Human-readable report, one item per line."""
         out = [f"log: {self.log}: {self.frames_read} frames read, {self.frames_mapped} of mapped messages"
@@ -207,6 +233,7 @@ class Summary:
             out.append(f"gaps: {len(gaps)} ({shown}{'; ...' if len(gaps) > 5 else ''})")
         else:
             out.append("gaps: none")
+        out += self.span_lines()
         if self.unknown_ids:
             top = sorted(self.unknown_ids.items(), key=lambda kv: -kv[1])
             shown = ", ".join(f"{k} ({v})" for k, v in top[:8])

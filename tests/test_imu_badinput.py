@@ -183,6 +183,31 @@ def test_ECHOED_FRAMES_counted_not_taken_for_samples(tmp_path, clean):
         assert got["fresh_speed"].sum() == ref["fresh_speed"].sum() > 0
 
 
+def test_LATE_SPEED_said_in_the_summary(tmp_path, clean):
+    """The wheel speed's frames missing for the first 1.5 s and the last 0.5 s of a 3 s log:
+    not a gap between two frames, which the gap finder sees ('gaps: none' was all it said, a
+    review); the summary says the source starts 1.5 s after the clock message, live and from
+    the log (its first and last frames' times are in both), and not the 0.5 s at the end
+    (under 1 s)."""
+    from imu import StreamDecoder
+
+    _, _, msgs, _, _ = clean
+    t0, t1 = msgs[0].timestamp, msgs[-1].timestamp
+    bad = [m for m in msgs if not (m.arbitration_id == 0x122 and not t0 + 1.5 <= m.timestamp <= t1 - 0.5)]
+    path = _write(bad, tmp_path / "x.csv")
+    _, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    for m in can.LogReader(path):
+        dec.push(m)
+    dec.flush()
+    for got in (summary, dec.summary()):
+        said = [line for line in got.lines() if "starts" in line or "stops" in line]
+        assert len(said) == 1 and said[0].startswith("source ") and "starts 1.5 s after" in said[0], said
+    assert [(s.first_s, s.last_s) for s in summary.sources] == [(s.first_s, s.last_s) for s in dec.summary().sources]
+    _, plain = read_log(_write(msgs, tmp_path / "y.csv"), sim_mapping(), MOUNT_FRD)
+    assert plain.span_lines() == []
+
+
 def test_GAP_reported_not_interpolated(tmp_path, clean):
     imu, offset, msgs, ref, _ = clean
     t0 = msgs[0].timestamp
