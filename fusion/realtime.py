@@ -127,10 +127,11 @@ class LiveFusion:
         The estimator is told the distance travelled since the last frame from the wheel speed
         (for the road's twist, :attr:`vision.options.EstimatorOptions.road_twist`), by the rule
         of the offline run (:func:`fusion.pipeline.last_speed`) over the samples the bus has
-        released so far. A frame handed in before the bus has released the samples of its
-        capture time (a camera thread faster than the decoder's align window) may see the speed
-        before, a few millimetres of travel off the offline run's, which the road-twist map can
-        turn into visibly different angles on some frames (README, "Embedding").
+        released and those still open in the decoder's align window
+        (:meth:`imu.StreamDecoder.pending_speeds`). A frame handed in before the CAN frames of
+        its capture time have arrived sees the speed before, a few millimetres of travel off the
+        offline run's, which the road-twist map can turn into visibly different angles on some
+        frames (README, "Embedding").
 
         A frame not after the previous one (a repeated or reordered frame) is skipped and counted
         (``counts``): the estimator's road map moves forward only; the previous result is
@@ -163,7 +164,12 @@ class LiveFusion:
                                    "wrong? (stream.counts['vision_future'])")
                 return _refused(f"frame at {t_cap:.3f} s too far ahead of the CAN bus ({newest:.3f} s)")
             self._in_row["ahead"] = 0
-            v = float(last_speed(*np.array(self._speeds).T, t_cap)[0]) if self._speeds else math.nan
+            # the released samples' speeds and those the samples of the capture time will carry
+            # once the align window has passed (the offline run's rule; without the latter a
+            # frame handed in at its capture time took the speed before, a few mm of travel off,
+            # which the road-twist map turned into other angles on 550 of 600 frames, a review)
+            speeds = [*self._speeds, *self.decoder.pending_speeds(t_cap)]
+            v = float(last_speed(*np.array(speeds).T, t_cap)[0]) if speeds else math.nan
             self._last_frame = (t_cap, v)
         est = self.vision.estimate(image, travel_m=travel_between(v0, v, t_cap - t0))
         self._last_estimate = est

@@ -438,6 +438,26 @@ class StreamDecoder:
         self._samples.stamp(T)
         return ImuSample(received_s=released_s, **vals)
 
+    def pending_speeds(self, t_limit: float) -> list[tuple[float, float]]:
+        """``(t_s, m/s)`` of the fresh wheel speeds the samples still open at or before
+        ``t_limit`` will carry when they are released (the rule of :meth:`_emit`, on the speed
+        frames received so far), without releasing them: what a frame captured at ``t_limit``
+        and handed in before the align window has passed its time can know of the speed."""
+        out = []
+        prev, speeds, k = self._prev_speed_idx, list(self._speed), 0
+        for g in self._open:
+            if g.t_s > t_limit:
+                break
+            while k + 1 < len(speeds) and speeds[k + 1][0] < g.t_s:
+                k += 1
+            idx = -1
+            if speeds and speeds[k][0] < g.t_s:
+                ts, v, idx = speeds[k]
+                if g.t_s - ts <= self.gap_limit_s and idx > prev:
+                    out.append((g.t_s, v))
+            prev = idx
+        return out
+
     def next_expiry_s(self) -> float:
         """When :meth:`expire` (default margin) next has something to do, ``time.perf_counter()``
         seconds: a frame waiting in the glitch gate too long (nothing else expires meanwhile),

@@ -63,7 +63,7 @@ def test_live_fusion_equals_the_offline_run(drive):
     est = live.estimate()
     assert live.stream.counts["vision_late"] >= 10
     if min_twisted:      # the tiny drive's two lines never use the twist map
-        assert (vision["road_twist_bank_change_deg"] != 0).sum() >= min_twisted
+        assert (vision["road_twist_bank_change_deg"].abs() > 0).sum() >= min_twisted
     last = offline.iloc[-1]
     assert est.t_s == pytest.approx(last["t_s"], abs=1e-9)
     for name in ("roll", "pitch", "yaw", "bank", "roll_world"):
@@ -189,6 +189,37 @@ def test_a_bus_clock_that_steps_or_restarts(sample_offline):
     est = live.estimate()
     truth_bank = np.interp(est.t_s + restart_at, truth["t_s"], truth["bank_deg"])
     assert abs(np.degrees(est.bank_rad) - truth_bank) < 0.5, (np.degrees(est.bank_rad), truth_bank)
+
+
+def test_frames_handed_in_before_the_bus_released_their_time(drive):
+    """A camera thread that hands each frame in 5 ms before the bus has reached its capture
+    time (the CAN frames of that time received, the decoder's 2 ms align window not passed):
+    the estimator gets the travel the offline run gives it, from the speeds the open samples
+    will carry (``StreamDecoder.pending_speeds``), and every frame's angles are the offline
+    run's. Before, it took the speed before: a few mm of travel off, and the road-twist map
+    turned that into other angles on 550 of 600 frames of a bench drive (a review). Frames
+    handed in before the CAN frames of their time have arrived cannot know them (15 ms: the
+    550 frames again)."""
+    drive, can_file, _ = drive
+    cfg = load_config(drive / "config.toml")
+    frames = pd.read_csv(drive / "frames.csv")
+    imu, _ = read_log(drive / can_file, cfg.can, cfg.imu)
+    frames = frames.assign(speed_m_s=frame_speeds(imu, frames["t_s"].to_numpy()))
+    vision, _ = estimate_video(drive / "video.mp4", frames, cfg.camera, cfg.mount, cfg.road,
+                               options_from_table(cfg.extra.get("vision")), progress=False)
+    live = LiveFusion(cfg)
+    queue = list(zip(frames["t_s"], FrameSource(drive / "video.mp4").grey_frames()))
+    got = []
+    for msg in can.LogReader(drive / can_file):
+        live.push_can(msg)
+        while queue and queue[0][0] - 0.005 <= msg.timestamp:
+            t, img = queue.pop(0)
+            got.append(live.push_frame(t, img))
+    got += [live.push_frame(t, img) for t, img in queue]
+    valid = vision["valid"].to_numpy(dtype=bool)
+    assert [e.valid for e in got] == list(valid)
+    rpy = np.degrees([e.rpy_rad for e in got])[valid]
+    np.testing.assert_allclose(rpy, vision[["roll_deg", "pitch_deg", "yaw_deg"]].to_numpy()[valid], atol=1e-9)
 
 
 def test_repeated_frames_and_settings_it_cannot_honour(sample_offline):
