@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -31,7 +32,8 @@ import numpy as np
 import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
+#: ``VIFUSION_SHARED_DATA`` overrides, as for the tests (``tests/conftest.py``)
+DATA = Path(os.environ.get("VIFUSION_SHARED_DATA") or ROOT.parent / "shared" / "data")
 KITTI = DATA / "kitti_2011_09_26_drive_0001" / "2011_09_26_drive_0001_sync"
 COMMA = DATA / "comma2k19_rav4_segment"
 CONVERGED_S = 2.0
