@@ -327,16 +327,23 @@ class FusionStream:
         ekf = self.ekf
         known = math.isfinite(s.speed)
         v = s.speed if known else 0.0  # the first wheel speed sets the state properly
-        f, r = s.accel - ekf.x[S.ACCEL_BIAS], s.gyro[2] - ekf.x[S.GYRO_BIAS_Z]
-        if ekf.has_pitch_rate:
-            ekf.x[S.ROLL_W] = math.atan2(f[1] - v * r, f[2] + v * (s.gyro[1] - ekf.x[S.GYRO_BIAS_Y]))
-        else:
-            ekf.x[S.ROLL_W] = math.asin(max(-1.0, min(1.0, (f[1] - v * r) / GRAVITY_M_S2)))
+        ekf.x[S.ROLL_W] = self._level_roll(s, v)
+        f = s.accel - ekf.x[S.ACCEL_BIAS]
         ekf.x[S.PITCH_W] = math.asin(max(-1.0, min(1.0, -f[0] / GRAVITY_M_S2)))
         ekf.x[S.SPEED] = v
         if not known:
             ekf.P[S.ROLL_W, S.ROLL_W] = max(ekf.P[S.ROLL_W, S.ROLL_W], _ROLL_SIGMA_WITHOUT_SPEED_RAD**2)
         self._initialized = True
+
+    def _level_roll(self, s: _ImuSample, v: float) -> float:
+        """The roll relative to level from sample ``s``'s specific force at speed ``v``, the
+        centripetal terms taken out (:meth:`_init_from_accel`); without a pitch gyro from the
+        lateral force alone."""
+        ekf = self.ekf
+        f, r = s.accel - ekf.x[S.ACCEL_BIAS], s.gyro[2] - ekf.x[S.GYRO_BIAS_Z]
+        if ekf.has_pitch_rate:
+            return math.atan2(f[1] - v * r, f[2] + v * (s.gyro[1] - ekf.x[S.GYRO_BIAS_Y]))
+        return math.asin(max(-1.0, min(1.0, (f[1] - v * r) / GRAVITY_M_S2)))
 
     def _process_sample(self, s: _ImuSample, prev: _ImuSample | None = None, visions=(), replayed=()) -> None:
         """Propagate from the previous sample to ``s``, applying the vision results that fall
@@ -578,7 +585,7 @@ class FusionStream:
 
     def _level_again(self, s: _ImuSample, v: float) -> None:
         """The first wheel speed after the start: the world roll from this sample's specific
-        force with the centripetal term taken out (as :meth:`_init_from_accel` does with a
+        force with the centripetal term taken out (:meth:`_level_roll`, as the start does with a
         speed), the bank moved with it so that the roll relative to the road stays the
         vision's, and their common direction reopened to the starting sigma. Before the speed
         the gravity reference waits, and on a leaning motorcycle nothing measures the world
@@ -588,14 +595,9 @@ class FusionStream:
         the accelerometer measured it all along (at constant speed), and one sample's
         ``-f_x / g``, with the rider's pitching in it, set the IMU-only filter off by 19 deg."""
         ekf, n = self.ekf, self.options.noise
-        f, r = s.accel - ekf.x[S.ACCEL_BIAS], s.gyro[2] - ekf.x[S.GYRO_BIAS_Z]
-        if ekf.has_pitch_rate:
-            roll = math.atan2(f[1] - v * r, f[2] + v * (s.gyro[1] - ekf.x[S.GYRO_BIAS_Y]))
-        else:
-            roll = math.asin(max(-1.0, min(1.0, (f[1] - v * r) / GRAVITY_M_S2)))
         e = np.zeros(DIM_X)
         e[[S.ROLL_W, S.BANK]] = 1.0
-        shift, grow = (roll - ekf.x[S.ROLL_W]) * e, n.init_angle_rad**2 * np.outer(e, e)
+        shift, grow = (self._level_roll(s, v) - ekf.x[S.ROLL_W]) * e, n.init_angle_rad**2 * np.outer(e, e)
 
         def level(x, P):
             x += shift
