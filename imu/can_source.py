@@ -414,15 +414,10 @@ class StreamDecoder:
         """The sample of group ``g``; ``released_s`` is when the frame that released it arrived."""
         g.emitted = True
         T = g.t_s
-        # speed: latest valid speed frame before T, if not older than gap_limit_s
         while len(self._speed) > 1 and self._speed[1][0] < T:
             self._speed.popleft()
-        speed, idx = math.nan, -1
-        if self._speed and self._speed[0][0] < T:
-            ts, v, idx = self._speed[0]
-            if T - ts <= self.gap_limit_s:
-                speed = v
-        fresh_speed = not math.isnan(speed) and idx > self._prev_speed_idx
+        speed, idx, fresh_speed = self._speed_rule(self._speed[0] if self._speed else None, T,
+                                                   self._prev_speed_idx)
         self._prev_speed_idx = idx
         vals: dict[str, Any] = {"t_s": T}
         for vch, ich, sign in self._vmap:
@@ -450,13 +445,21 @@ class StreamDecoder:
                 break
             while k + 1 < len(speeds) and speeds[k + 1][0] < g.t_s:
                 k += 1
-            idx = -1
-            if speeds and speeds[k][0] < g.t_s:
-                ts, v, idx = speeds[k]
-                if g.t_s - ts <= self.gap_limit_s and idx > prev:
-                    out.append((g.t_s, v))
-            prev = idx
+            v, prev, fresh = self._speed_rule(speeds[k] if speeds else None, g.t_s, prev)
+            if fresh:
+                out.append((g.t_s, v))
         return out
+
+    def _speed_rule(self, frame: tuple | None, T: float, prev_idx: int) -> tuple[float, int, bool]:
+        """A sample at ``T``'s wheel speed from ``frame`` ``(t_s, m/s, counter)``, the latest
+        speed frame before ``T`` kept so far: ``(m/s, counter, fresh)``, the speed NaN when the
+        frame is not before ``T`` or older than ``gap_limit_s``, fresh when it is a speed frame
+        after the one the sample before took (counter ``prev_idx``)."""
+        if frame is None or not frame[0] < T:
+            return math.nan, -1, False
+        ts, v, idx = frame
+        speed = v if T - ts <= self.gap_limit_s else math.nan
+        return speed, idx, not math.isnan(speed) and idx > prev_idx
 
     def next_expiry_s(self) -> float:
         """When :meth:`expire` (default margin) next has something to do, ``time.perf_counter()``
