@@ -46,12 +46,11 @@ class ReportInputs:
     imu_calibration: dict | None = None
 
 
-def _truth_covers_s(fused: pd.DataFrame, truth: pd.DataFrame, t0: float, angles, every: bool = False) -> float:
-    """Seconds of the fused samples from ``t0`` on at which the truth has a value of one of
-    ``angles`` estimated (``every``: of all of them): the samples' count times their median
-    interval."""
+def _truth_covers_s(fused: pd.DataFrame, tr: pd.DataFrame, t0: float, angles, every: bool = False) -> float:
+    """Seconds of the fused samples from ``t0`` on at which the truth (``tr``: interpolated at
+    their times) has a value of one of ``angles`` estimated (``every``: of all of them): the
+    samples' count times their median interval."""
     t = fused["t_s"].to_numpy(dtype=float)
-    tr = interp_truth(truth, t)
     cols = [f"{a}_deg" for a in angles if f"{a}_deg" in tr and f"{a}_deg" in fused]
     if not cols or len(t) < 2:
         return 0.0
@@ -79,10 +78,11 @@ def summarise(r: ReportInputs) -> dict:
             out["imu_calibration"] = calibration_table(f)   # what calibration.toml holds
     out["duration_s"] = float(f["t_s"].iloc[-1] - f["t_s"].iloc[0]) if len(f) else 0.0
     t0 = float(f["t_s"].iloc[0]) + CONVERGENCE_S if len(f) else math.nan
+    tr = interp_truth(r.truth, f["t_s"].to_numpy()) if r.truth is not None and len(f) else None
     if r.truth is not None and len(f) and not f["t_s"].iloc[-1] - t0 >= MIN_SCORED_S:
         out["warnings"] = [*r.warnings, f"no RMSE against truth: the drive has under {MIN_SCORED_S:g} s after the "
                                         f"first {CONVERGENCE_S:g} s of convergence"]
-    elif r.truth is not None and len(f) and (covered := _truth_covers_s(f, r.truth, t0, ANGLES)) < MIN_SCORED_S:
+    elif r.truth is not None and len(f) and (covered := _truth_covers_s(f, tr, t0, ANGLES)) < MIN_SCORED_S:
         # a truth cut short or empty where the run is scored: said, not a table of nulls (a review)
         out["warnings"] = [*r.warnings, f"no RMSE against truth: it has values for {covered:.1f} s of the drive "
                                         f"after the first {CONVERGENCE_S:g} s of convergence, under {MIN_SCORED_S:g} s"]
@@ -105,7 +105,7 @@ def summarise(r: ReportInputs) -> dict:
         out["rmse_deg"] = acc
         nees_angles = ("roll", "pitch", "yaw", "bank")
         if all(f"{a}_deg" in r.truth for a in nees_angles) and \
-                _truth_covers_s(f, r.truth, t0, nees_angles, every=True) < MIN_SCORED_S:
+                _truth_covers_s(f, tr, t0, nees_angles, every=True) < MIN_SCORED_S:
             out["warnings"] = [*out["warnings"], f"no NEES against the truth: it has roll, pitch, yaw and bank together "
                                f"for under {MIN_SCORED_S:g} s of the scored drive"]
         elif all(f"{a}_deg" in r.truth for a in nees_angles):

@@ -11,6 +11,7 @@ their 1-sigma, the validity (or why not), the time.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from pathlib import Path
@@ -126,8 +127,10 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
     return np.concatenate([frame, bev_panel], axis=1)
 
 
+@functools.lru_cache(maxsize=8)
 def _monotonic_radius(camera: Camera) -> float:
-    """The normalized radius up to which ``camera``'s distortion grows with the radius."""
+    """The normalized radius up to which ``camera``'s distortion grows with the radius (once per
+    camera, not per debug frame)."""
     r = np.linspace(0.0, 4.0, 801)
     xd, yd = camera.distort_normalized(r, np.zeros_like(r))
     falls = np.flatnonzero(np.diff(np.hypot(xd, yd)) <= 0)

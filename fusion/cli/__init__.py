@@ -221,8 +221,9 @@ def refuse_inputs_as_outputs(outputs, inputs) -> None:
 
     given = {os.path.realpath(p): p for p in inputs if p is not None}
     for out in outputs:
-        if out is not None and os.path.realpath(out) in given:
-            raise InputError(f"{out}: is an input of this command ({given[os.path.realpath(out)]}) and would be "
+        same = given.get(os.path.realpath(out)) if out is not None else None
+        if same is not None:
+            raise InputError(f"{out}: is an input of this command ({same}) and would be "
                              "overwritten: write the output elsewhere")
 
 

@@ -327,8 +327,6 @@ def check_out(out: Path) -> None:
                              f"{', ...' if len(other) > 3 else ''}): give a new or empty folder")
 
 
-
-
 def _offset_line(t: dict) -> str:
     """The camera-offset estimate of ``summary.json``'s ``time_offset`` as one line."""
     if t.get("reason"):
