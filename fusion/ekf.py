@@ -310,21 +310,60 @@ class NoiseModel:
         times ``vision_sigma_scale``, floored at ``vision_sigma_floor_rad``, and in quadrature
         ``vision_road_model_error`` of the road-in-view effect the filter models for them (the
         lookahead's bank change, the twist's pitch and yaw errors)."""
-        own = np.maximum(np.asarray(sigma_rad, dtype=float) * self.vision_sigma_scale, self.vision_sigma_floor_rad)
-        return np.hypot(own, self.vision_road_model_error * np.abs(road_effect_rad))
+        return _vision_sigma_v(sigma_rad, road_effect_rad, *self._vision_sigma_params()[:3])
 
     def twist_sigma_rad_m(self, twist_rad_m, sigma_rad_m):
         """The vision's road-twist 1-sigma as the filter uses it (rad/m; scalars or arrays): its
         own, floored at ``twist_sigma_floor_rad_m + twist_sigma_floor_rel |twist|``."""
-        own = np.where(np.isfinite(sigma_rad_m), sigma_rad_m, 0.0)
-        return np.maximum(own, self.twist_sigma_floor_rad_m + self.twist_sigma_floor_rel * np.abs(twist_rad_m))
+        return _twist_sigma_v(twist_rad_m, sigma_rad_m, *self._vision_sigma_params()[6:])
 
     def curvature_sigma_1_m(self, curvature_1_m, sigma_1_m):
         """The lane-fit curvature's 1-sigma as the filter uses it (1/m; scalars or arrays): the
         fit's own (``curvature_meas_1_m`` where it gives none), floored at
         ``curvature_sigma_floor_1_m + curvature_sigma_floor_rel |curvature|``."""
-        own = np.where(np.isfinite(sigma_1_m), sigma_1_m, self.curvature_meas_1_m)
-        return np.maximum(own, self.curvature_sigma_floor_1_m + self.curvature_sigma_floor_rel * np.abs(curvature_1_m))
+        return _curvature_sigma_v(curvature_1_m, sigma_1_m, *self._vision_sigma_params()[3:6])
+
+    def _vision_sigma_params(self) -> np.ndarray:
+        """The parameters of the three sigmas above, in the order the compiled updates take them
+        (:func:`_vision_sigma`, :func:`_curvature_sigma`, :func:`_twist_sigma`)."""
+        return np.array([self.vision_sigma_scale, self.vision_sigma_floor_rad, self.vision_road_model_error,
+                         self.curvature_meas_1_m, self.curvature_sigma_floor_1_m, self.curvature_sigma_floor_rel,
+                         self.twist_sigma_floor_rad_m, self.twist_sigma_floor_rel])
+
+
+# ---- the measurement sigmas of NoiseModel, per value: compiled, for the updates (which run
+# for every frame) and vectorised for NoiseModel's methods. np.maximum's NaN is kept.
+
+
+@nb.njit(cache=True)
+def _max_nan(a, b):
+    """``np.maximum`` of two floats: NaN if either is."""
+    if a != a or b != b:
+        return math.nan
+    return a if a >= b else b
+
+
+@nb.njit(cache=True)
+def _vision_sigma(sigma, effect, scale, floor, model_error):
+    """:meth:`NoiseModel.vision_sigma_rad` of one angle."""
+    return math.hypot(_max_nan(sigma * scale, floor), model_error * abs(effect))
+
+
+@nb.njit(cache=True)
+def _curvature_sigma(curvature, sigma, meas, floor, rel):
+    """:meth:`NoiseModel.curvature_sigma_1_m` of one curvature."""
+    return _max_nan(sigma if math.isfinite(sigma) else meas, floor + rel * abs(curvature))
+
+
+@nb.njit(cache=True)
+def _twist_sigma(twist, sigma, floor, rel):
+    """:meth:`NoiseModel.twist_sigma_rad_m` of one twist."""
+    return _max_nan(sigma if math.isfinite(sigma) else 0.0, floor + rel * abs(twist))
+
+
+_vision_sigma_v = np.vectorize(_vision_sigma, otypes=[float])
+_curvature_sigma_v = np.vectorize(_curvature_sigma, otypes=[float])
+_twist_sigma_v = np.vectorize(_twist_sigma, otypes=[float])
 
 
 def road_ahead_as_seen(bank_rad, curvature_1_m, distance_m, grade_rad=0.0):
@@ -366,8 +405,9 @@ def road_ahead_as_seen(bank_rad, curvature_1_m, distance_m, grade_rad=0.0):
     return _road_turn(float(bank_rad), float(curvature_1_m), float(distance_m), float(grade_rad))
 
 
-def _road_turn(b: float, k: float, d: float, g: float = 0.0) -> tuple[float, float, float]:
-    """:func:`road_ahead_as_seen` for scalars (a few us; the filter calls it twice a frame).
+@nb.njit(cache=True)
+def _road_turn(b, k, d, g=0.0):
+    """:func:`road_ahead_as_seen` for scalars (compiled: the filter calls it twice a frame).
     ``phi`` is clipped short of a quarter turn: no cross-section meets the curve beyond its
     radius."""
     phi = math.asin(max(-0.999, min(0.999, k * d)))
@@ -394,9 +434,17 @@ def twist_response_effect(response, tau_here_rad_m, tau_ahead_rad_m):
     rad/m of twist here and at the cross-sections), for the twist ``tau_here_rad_m`` at the
     vehicle and the vision's own measured twist ahead (NaN where it measured none: the twist
     here, a uniform twist). Scalars, or arrays with the gains along the first axis."""
-    ahead = np.where(np.isfinite(tau_ahead_rad_m), tau_ahead_rad_m, tau_here_rad_m)
-    return (response[4] * tau_here_rad_m + response[5] * ahead,
-            response[0] * tau_here_rad_m + response[1] * ahead)
+    return _twist_effect_v(response[0], response[1], response[4], response[5], tau_here_rad_m, tau_ahead_rad_m)
+
+
+@nb.njit(cache=True)
+def _twist_effect(k_here, k_ahead, yaw_here, yaw_ahead, tau_here, tau_ahead):
+    """:func:`twist_response_effect` of one frame: ``(yaw, curvature)``."""
+    ahead = tau_ahead if math.isfinite(tau_ahead) else tau_here
+    return yaw_here * tau_here + yaw_ahead * ahead, k_here * tau_here + k_ahead * ahead
+
+
+_twist_effect_v = np.vectorize(_twist_effect, otypes=[float, float])
 
 
 @dataclass(frozen=True)
@@ -695,6 +743,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.last_d2 = math.nan
         self._gate = {k: float(chi2.ppf(noise.gate_probability, k)) for k in (1, 2, 3, 4)}
         self._R_accel = np.diag(np.asarray(noise.accel_meas_m_s2, dtype=float) ** 2)
+        self._sigma_params = noise._vision_sigma_params()
         self.curvature_rejected = 0
 
     # ---- process ----
@@ -818,61 +867,19 @@ class AttitudeEKF(ExtendedKalmanFilter):
         runoff); the measurement is modelled with it, which turns the runoff from a vision
         error into information on the bank rate.
         """
-        n = self.noise
-        curvature_1_m, curvature_sigma_1_m = m.curvature_1_m, m.curvature_sigma_1_m
-        own_sig = np.asarray(m.sigmas_rad, dtype=float)
-        effect = 0.0                     # the road-in-view effect modelled, rad (per angle)
-        curvature_effect = 0.0           # and on the lane curvature, 1/m
-        x_seen = self.x
-        v = self.x[S.SPEED]
-        lookahead = m.roll_lookahead_m if math.isfinite(m.roll_lookahead_m) and m.roll_lookahead_m > 0 else 0.0
-        per_twist = np.array([0.0, m.twist_m[0], m.twist_m[1]]) / v if v > 1.0 else None  # rad per rad/s
-        if per_twist is not None and not defer_roll:
-            dt_ahead = lookahead / v
-            x_seen = self.x.copy()
-            x_seen[S.BANK] += self.x[S.BANK_RATE] * dt_ahead
-            H = vision_jacobian(x_seen)
-            hx = vision_hx(x_seen) + per_twist * self.x[S.BANK_RATE]
-            hx[0] += self._bank_turned_ahead(H[0], x_seen, lookahead)
-            H[:, S.BANK_RATE] = H[:, S.BANK] * dt_ahead
-            H[:, S.BANK_RATE] += per_twist
-            effect = self.x[S.BANK_RATE] * np.array([dt_ahead, per_twist[1], per_twist[2]])
-        else:
-            H, hx = vision_jacobian(x_seen), vision_hx(x_seen)
-            if per_twist is not None:
-                # Deferred roll. The twist in view is that of the road between the vehicle and
-                # the lookahead: its bank rate is taken as the mean of the rate here (state) and
-                # the mean rate over the stretch (``bank_rate_ahead``, from the vision roll ahead
-                # against the bank here). A known correction, not information on the bank rate:
-                # at a runoff's start the errors do not follow the uniform-twist model
-                # (measured: of either sign), and read as information they pulled the bank the
-                # wrong way by degrees.
-                rate = 0.5 * (self.x[S.BANK_RATE] + bank_rate_ahead)
-                effect = per_twist * rate
-                g = m.twist_response
-                if all(math.isfinite(gi) for gi in g):
-                    # Yaw and lane curvature: the estimator's own response to the twist here
-                    # (bank rate) and at its cross-sections (its measured twist; where it measured
-                    # none, the twist here, a uniform twist), a twist changing across the view
-                    # included. Where the frame measured no twist, the rate the deferred rolls
-                    # imply ahead did better on the HD drives (left-hand bank 0.230 against 0.276
-                    # deg) but ruined the bundled 640x360 drive, whose rolls are noisier (bank
-                    # 0.453 -> 0.657, world roll 0.346 -> 0.737 deg, worse than the IMU alone;
-                    # with the twist here 0.517 and 0.583, the IMU alone's 0.588).
-                    # Pitch keeps the uniform model: with the response it was worse on all
-                    # three benchmark drives (0.051 / 0.031 / 0.021 -> 0.065 / 0.045 / 0.045 deg).
-                    yaw_effect, curvature_effect = twist_response_effect(g, self.x[S.BANK_RATE] / v, m.road_twist_rad_m)
-                    effect[2], curvature_effect = float(yaw_effect), float(curvature_effect)
-                hx = hx + effect
-        sig = n.vision_sigma_rad(own_sig, effect)
-        z = np.asarray(m.angles_rad, dtype=float)
-        if defer_roll:
-            z, H, hx, sig = z[1:], H[1:], hx[1:], sig[1:]
-        ok = self.gated_update(z, H, hx, np.diag(sig**2), residual=_angle_residual)
-        if math.isfinite(curvature_1_m):
-            s_k = float(n.curvature_sigma_1_m(curvature_1_m, curvature_sigma_1_m))
-            s_k = math.hypot(s_k, n.vision_road_model_error * curvature_effect)
-            if not self.gated_update_state(S.CURVATURE, curvature_1_m - curvature_effect, s_k**2):
+        angles = np.asarray(m.angles_rad, dtype=float)
+        (ok, d2, y, K, Sm, SI, k_tried, k_ok, k_d2, k_y, k_S, k_K, x, P) = _vision_update(
+            self.x, self.P, angles, np.asarray(m.sigmas_rad, dtype=float), float(m.twist_m[0]), float(m.twist_m[1]),
+            float(m.roll_lookahead_m), defer_roll, float(bank_rate_ahead), np.asarray(m.twist_response, dtype=float),
+            float(m.road_twist_rad_m), float(m.curvature_1_m), float(m.curvature_sigma_1_m), self._sigma_params,
+            self._gate[1], self._gate[2] if defer_roll else self._gate[3])
+        self._accept(ok, d2, x, P, y, K, Sm, SI, angles[1:] if defer_roll else angles)
+        if k_tried:
+            if k_ok:
+                self._accept(True, k_d2, x, P, np.array([k_y]), k_K[:, None], np.array([[k_S]]),
+                             np.array([[1.0 / k_S]]), m.curvature_1_m)
+            else:
+                self.last_d2 = k_d2
                 self.curvature_rejected += 1
         return ok
 
@@ -881,14 +888,10 @@ class AttitudeEKF(ExtendedKalmanFilter):
         roll was measured: ``r.roll_rad + roll_turned_rad`` is the roll relative to the road
         under the wheels, with ``roll_turned_rad`` the vehicle's roll (relative to level) since
         the frame, as the gyros propagated it. Gated like every update."""
-        n = self.noise
-        # the lookahead's own error (a fraction of it) is a timing error of the bank
-        sig = float(n.vision_sigma_rad(r.sigma_rad, self.x[S.BANK_RATE] * r.dt_ahead_s))
-        H = vision_jacobian(self.x)[:1].copy()
-        hx = vision_hx(self.x)[:1]
-        hx[0] += self._bank_turned_ahead(H[0], self.x, r.lookahead_m)
-        z = np.array([r.roll_rad + roll_turned_rad])
-        return self.gated_update(z, H, hx, np.array([[sig * sig]]), residual=_angle_residual)
+        z = float(r.roll_rad + roll_turned_rad)
+        ok, d2, x, P, y, K, Sm, SI = _roll_ahead_update(self.x, self.P, z, float(r.sigma_rad), float(r.dt_ahead_s),
+                                                         float(r.lookahead_m), self._sigma_params, self._gate[1])
+        return self._accept(ok, d2, x, P, y, K, Sm, SI, np.array([z]))
 
     def update_road_twist(self, twist_rad_m: float, sigma_rad_m: float, lookahead_m: float = 0.0) -> bool:
         """The vision's road twist at the road under the wheels (:class:`RollAhead`) as the
@@ -907,35 +910,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
         order (``bank kappa^2 L``) and taken as known: with them in the Jacobian the runoffs'
         twist errors reached the curvature (left-hand drive's bank 0.267 -> 0.308 deg, same
         vision). Gated like every update."""
-        x = self.x
-        v = float(x[S.SPEED])
-        if not (v > 1.0 and math.isfinite(twist_rad_m)):
+        if not (self.x[S.SPEED] > 1.0 and math.isfinite(twist_rad_m)):
             return False
-        b, k, g = float(x[S.BANK]), float(x[S.CURVATURE]), float(x[S.GRADE])
-        _, turned, phi = _road_turn(b, k, lookahead_m, g)
-        H = np.zeros((1, DIM_X))
-        H[0, S.BANK_RATE] = math.cos(phi) / v
-        h = 1e-3   # rad; central difference (``turned`` is linear in the grade to 1e-6)
-        H[0, S.GRADE] = (_road_turn(b, k, lookahead_m, g + h)[1] - _road_turn(b, k, lookahead_m, g - h)[1]) / (2 * h)
-        hx = np.array([float(x[S.BANK_RATE]) * math.cos(phi) / v + turned])
-        sig = float(self.noise.twist_sigma_rad_m(twist_rad_m, sigma_rad_m))
-        return self.gated_update(np.array([twist_rad_m]), H, hx, np.array([[sig * sig]]))
-
-    @staticmethod
-    def _bank_turned_ahead(H_roll: np.ndarray, x: np.ndarray, lookahead_m: float) -> float:
-        """The vision roll's part from the road turning over ``lookahead_m`` (roll ahead ``roll_w
-        - bank + r``, :func:`road_ahead_as_seen`): returns ``r`` to add to the predicted roll,
-        and adds its derivatives to the roll's Jacobian row ``H_roll`` (in place)."""
-        if not lookahead_m > 0.0:
-            return 0.0
-        bank, kappa, grade = float(x[S.BANK]), float(x[S.CURVATURE]), float(x[S.GRADE])
-        seen, _, phi = _road_turn(bank, kappa, lookahead_m, grade)
-        # derivatives of r ~ bank (1 - cos phi) + grade sin phi, phi = asin(kappa L): to first
-        # order in the bank and grade
-        H_roll[S.BANK] += 1.0 - math.cos(phi)
-        H_roll[S.GRADE] += math.sin(phi)
-        H_roll[S.CURVATURE] += (bank * math.tan(phi) + grade) * lookahead_m
-        return bank - seen
+        ok, d2, x, P, y, K, Sm, SI = _road_twist_update(self.x, self.P, float(twist_rad_m), float(sigma_rad_m),
+                                                         float(lookahead_m), self._sigma_params, self._gate[1])
+        return self._accept(ok, d2, x, P, y, K, Sm, SI, np.array([twist_rad_m]))
 
     def specific_force_model(self, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0):
         """Predicted specific force at the IMU (vehicle axes, m/s^2) and its Jacobian.
@@ -1293,6 +1272,139 @@ def _update_state(x, P, i, y, Sm):
             for b in range(P.shape[1]):
                 P1[a, b] -= ka * Pi[b]
     return x + K * y, P1, K
+
+
+@nb.njit(cache=True)
+def _bank_turned_ahead(H_roll, x, lookahead_m):
+    """The vision roll's part from the road turning over ``lookahead_m`` (roll ahead ``roll_w
+    - bank + r``, :func:`road_ahead_as_seen`): returns ``r`` to add to the predicted roll,
+    and adds its derivatives to the roll's Jacobian row ``H_roll`` (in place)."""
+    if not lookahead_m > 0.0:
+        return 0.0
+    bank, kappa, grade = x[3], x[14], x[4]
+    seen, _, phi = _road_turn(bank, kappa, lookahead_m, grade)
+    # derivatives of r ~ bank (1 - cos phi) + grade sin phi, phi = asin(kappa L): to first
+    # order in the bank and grade
+    H_roll[3] += 1.0 - math.cos(phi)
+    H_roll[4] += math.sin(phi)
+    H_roll[14] += (bank * math.tan(phi) + grade) * lookahead_m
+    return bank - seen
+
+
+@nb.njit(cache=True)
+def _vision_update(x, P, z, own_sig, twist_pitch_m, twist_yaw_m, roll_lookahead_m, defer_roll, bank_rate_ahead,
+                   response, road_twist, curvature, curvature_sigma, sig_prm, gate1, gate_angles):
+    """:meth:`AttitudeEKF.update_vision` (its docstring has the model): the angles, then the
+    curvature. ``sig_prm``: :meth:`NoiseModel._vision_sigma_params`. Returns the angles' ``(ok,
+    d2, y, K, S, S^-1)``, the curvature's ``(tried, ok, d2, y, S, K)`` and the final ``(x,
+    P)``."""
+    v = x[8]
+    lookahead = roll_lookahead_m if math.isfinite(roll_lookahead_m) and roll_lookahead_m > 0 else 0.0
+    moving = v > 1.0
+    per_twist = np.zeros(3)            # rad per rad/s of bank rate
+    if moving:
+        per_twist[1], per_twist[2] = twist_pitch_m / v, twist_yaw_m / v
+    effect = np.zeros(3)               # the road-in-view effect modelled, rad (per angle)
+    curvature_effect = 0.0             # and on the lane curvature, 1/m
+    if moving and not defer_roll:
+        dt_ahead = lookahead / v
+        x_seen = x.copy()
+        x_seen[3] += x[10] * dt_ahead
+        H = vision_jacobian(x_seen)
+        hx = vision_hx(x_seen) + per_twist * x[10]
+        hx[0] += _bank_turned_ahead(H[0], x_seen, lookahead)
+        for i in range(3):
+            H[i, 10] = H[i, 3] * dt_ahead
+            H[i, 10] += per_twist[i]
+        effect[0], effect[1], effect[2] = x[10] * dt_ahead, x[10] * per_twist[1], x[10] * per_twist[2]
+    else:
+        H, hx = vision_jacobian(x), vision_hx(x)
+        if moving:
+            # Deferred roll. The twist in view is that of the road between the vehicle and
+            # the lookahead: its bank rate is taken as the mean of the rate here (state) and
+            # the mean rate over the stretch (``bank_rate_ahead``, from the vision roll ahead
+            # against the bank here). A known correction, not information on the bank rate:
+            # at a runoff's start the errors do not follow the uniform-twist model
+            # (measured: of either sign), and read as information they pulled the bank the
+            # wrong way by degrees.
+            rate = 0.5 * (x[10] + bank_rate_ahead)
+            for i in range(3):
+                effect[i] = per_twist[i] * rate
+            finite = True
+            for g in response:
+                finite = finite and math.isfinite(g)
+            if finite:
+                # Yaw and lane curvature: the estimator's own response to the twist here
+                # (bank rate) and at its cross-sections (its measured twist; where it measured
+                # none, the twist here, a uniform twist), a twist changing across the view
+                # included. Where the frame measured no twist, the rate the deferred rolls
+                # imply ahead did better on the HD drives (left-hand bank 0.230 against 0.276
+                # deg) but ruined the bundled 640x360 drive, whose rolls are noisier (bank
+                # 0.453 -> 0.657, world roll 0.346 -> 0.737 deg, worse than the IMU alone;
+                # with the twist here 0.517 and 0.583, the IMU alone's 0.588).
+                # Pitch keeps the uniform model: with the response it was worse on all
+                # three benchmark drives (0.051 / 0.031 / 0.021 -> 0.065 / 0.045 / 0.045 deg).
+                effect[2], curvature_effect = _twist_effect(response[0], response[1], response[4], response[5],
+                                                            x[10] / v, road_twist)
+            hx = hx + effect
+    first = 1 if defer_roll else 0     # a deferred roll is applied later (RollAhead)
+    m = 3 - first
+    R = np.zeros((m, m))
+    for i in range(m):
+        s = _vision_sigma(own_sig[first + i], effect[first + i], sig_prm[0], sig_prm[1], sig_prm[2])
+        R[i, i] = s * s
+    y = _angle_residual(z[first:].copy(), hx[first:].copy())
+    ok, d2, x1, P1, K, Sm, SI = _gated_update(x, P, y, H[first:].copy(), R, gate_angles)
+    # the lane-fit curvature, gated on its own
+    k_tried, k_ok, k_d2, k_y, k_S, k_K = False, False, math.nan, math.nan, math.nan, np.zeros(x.size)
+    if math.isfinite(curvature):
+        s_k = _curvature_sigma(curvature, curvature_sigma, sig_prm[3], sig_prm[4], sig_prm[5])
+        s_k = math.hypot(s_k, sig_prm[2] * curvature_effect)
+        k_tried = True
+        k_y = curvature - curvature_effect - x1[14]
+        k_S = P1[14, 14] + s_k * s_k
+        k_d2 = k_y * k_y / k_S
+        k_ok = not k_d2 > gate1
+        if k_ok:
+            x1, P1, k_K = _update_state(x1, P1, 14, k_y, k_S)
+    return ok, d2, y, K, Sm, SI, k_tried, k_ok, k_d2, k_y, k_S, k_K, x1, P1
+
+
+@nb.njit(cache=True)
+def _roll_ahead_update(x, P, z, sigma, dt_ahead, lookahead_m, sig_prm, gate1):
+    """:meth:`AttitudeEKF.update_roll_ahead`: ``(ok, d2, x, P, y, K, S, S^-1)``. The lookahead's
+    own error (a fraction of it) is a timing error of the bank."""
+    s = _vision_sigma(sigma, x[10] * dt_ahead, sig_prm[0], sig_prm[1], sig_prm[2])
+    H = vision_jacobian(x)[:1].copy()
+    hx = vision_hx(x)[:1].copy()
+    hx[0] += _bank_turned_ahead(H[0], x, lookahead_m)
+    zz = np.empty(1)
+    zz[0] = z
+    R = np.empty((1, 1))
+    R[0, 0] = s * s
+    y = _angle_residual(zz, hx)
+    ok, d2, x1, P1, K, Sm, SI = _gated_update(x, P, y, H, R, gate1)
+    return ok, d2, x1, P1, y, K, Sm, SI
+
+
+@nb.njit(cache=True)
+def _road_twist_update(x, P, twist, sigma, lookahead_m, sig_prm, gate1):
+    """:meth:`AttitudeEKF.update_road_twist` (the speed above 1 m/s, the twist finite):
+    ``(ok, d2, x, P, y, K, S, S^-1)``."""
+    v = x[8]
+    b, k, g = x[3], x[14], x[4]
+    _, turned, phi = _road_turn(b, k, lookahead_m, g)
+    H = np.zeros((1, x.size))
+    H[0, 10] = math.cos(phi) / v
+    h = 1e-3   # rad; central difference (``turned`` is linear in the grade to 1e-6)
+    H[0, 4] = (_road_turn(b, k, lookahead_m, g + h)[1] - _road_turn(b, k, lookahead_m, g - h)[1]) / (2 * h)
+    y = np.empty(1)
+    y[0] = twist - (x[10] * math.cos(phi) / v + turned)
+    s = _twist_sigma(twist, sigma, sig_prm[6], sig_prm[7])
+    R = np.empty((1, 1))
+    R[0, 0] = s * s
+    ok, d2, x1, P1, K, Sm, SI = _gated_update(x, P, y, H, R, gate1)
+    return ok, d2, x1, P1, y, K, Sm, SI
 
 
 @nb.njit(cache=True)
