@@ -20,7 +20,7 @@ from imu.samples import never_seen
 
 from ..config import Table, parse_can, parse_imu, read_toml
 from ..errors import ConfigError, InputError
-from . import refuse_inputs_as_outputs
+from . import refuse_inputs_as_outputs, settle_heap
 
 OUT_SUFFIXES = (".parquet", ".csv")
 
@@ -54,6 +54,7 @@ def load_can_config(path: str | Path):
 
 
 def run(args: argparse.Namespace) -> int:
+    settle_heap()
     out = Path(args.out)
     if out.suffix.lower() not in OUT_SUFFIXES:
         raise InputError(f"{out}: output must end in {' or '.join(OUT_SUFFIXES)}")

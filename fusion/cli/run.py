@@ -101,7 +101,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..report import ReportInputs, write_report
     from ..timing import estimate_camera_offset
 
-    from . import STARTED_S
+    from . import STARTED_S, settle_heap
 
     t_start = getattr(args, "started_s", STARTED_S)   # a campaign starts each drive's clock anew
     timings: dict[str, float] = {}
@@ -140,6 +140,7 @@ def _run(args: argparse.Namespace) -> int:
     args.partial_dir = tmp
     # numba's compiler target, which every compiled kernel needs (0.1-0.3 s once a process, as
     # imports are): started here, before the vision workers fork from this process
+    settle_heap()
     start_numba()
     timings["start-up"] = time.perf_counter() - t_start
 

@@ -27,7 +27,9 @@ def run(args: argparse.Namespace) -> int:
     from drivesim.scenario import load_scenario
 
     from ..errors import InputError
+    from . import settle_heap
 
+    settle_heap()
     if args.frames is not None and args.frames < 0:
         raise InputError(f"--frames must be >= 0, got {args.frames}")
     scenario = load_scenario(args.scenario)

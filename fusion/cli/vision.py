@@ -53,7 +53,9 @@ def run(args: argparse.Namespace) -> int:
     from ..config import load_config
     from ..drive import read_frame_times
     from ..errors import InputError
+    from . import settle_heap
 
+    settle_heap()
     if args.out.suffix.lower() not in (".csv", ".parquet"):
         raise InputError(f"{args.out}: the vision table is written as .csv or .parquet")
     if args.out.is_dir():   # said now, not after every frame
