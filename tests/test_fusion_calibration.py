@@ -1,7 +1,8 @@
 """The IMU's biases carried from one drive to the next (fusion.calibration): a bank campaign
 with one vehicle, on simulated drives with the benchmark drives' IMU (gyro bias 0.2 / 0.15 /
 -0.3 deg/s, accelerometer bias 0.05 / 0.04 / -0.02 m/s^2 in the vehicle frame, the filter told
-the accelerometer's datasheet offsets as 1-sigma and its noise) and vision drawn from the truth."""
+the accelerometer's datasheet residual, 0.05 m/s^2, as 1-sigma and its noise) and vision drawn
+from the truth."""
 
 import numpy as np
 import pytest
@@ -15,8 +16,8 @@ from fusion_support import SIM_ACCEL_NOISE_M_S2, rmse_deg, synth_drive
 
 ACCEL_BIAS_IMU = (0.05, -0.04, 0.02)   # IMU axes (x, -y, -z of the vehicle): 0.04 m/s^2 lateral
 #: What the simulator writes into a drive's config (tools/drivesim/drive.py): the accelerometer's
-#: offsets as 1-sigma, and its noise.
-DATASHEET = {"accel_bias_sigma_m_s2": [0.05, 0.04, 0.02], "accel_noise_m_s2": [SIM_ACCEL_NOISE_M_S2] * 3}
+#: datasheet residual after calibration as 1-sigma (not the bias drawn), and its noise.
+DATASHEET = {"accel_bias_sigma_m_s2": 0.05, "accel_noise_m_s2": [SIM_ACCEL_NOISE_M_S2] * 3}
 
 
 @pytest.fixture(scope="module")
@@ -29,8 +30,8 @@ def campaign():
 
 def test_a_drive_with_curves_both_ways_calibrates_the_imu(campaign):
     """The 60 s drive (left and right banked curves) ends with every bias within 3 sigma of the
-    truth, and the lateral accelerometer bias's sigma at most half the datasheet's 0.04 m/s^2
-    (measured 0.018 +- 0.014 m/s^2; yaw-rate bias -0.308 +- 0.017 deg/s)."""
+    truth, and the lateral accelerometer bias's sigma at most 0.4 of the datasheet's 0.05 m/s^2
+    (measured 0.020 +- 0.014 m/s^2; yaw-rate bias -0.307 +- 0.017 deg/s)."""
     first, cal = campaign
     truth_gyro = np.degrees(first.imu_truth[[f"gyro_bias_{a}_rad_s" for a in "xyz"]].to_numpy()[-1])
     truth_accel = first.imu_truth[[f"accel_bias_{a}_m_s2" for a in "xyz"]].to_numpy()[-1]
@@ -42,18 +43,20 @@ def test_a_drive_with_curves_both_ways_calibrates_the_imu(campaign):
 
 def test_the_next_drive_starts_from_the_calibration(campaign):
     """A 20 s drive through one right-hand curve banked 7 deg, same IMU: at constant speed its
-    lateral accelerometer bias cannot be told from bank, so alone its bank RMSE is over 0.3 deg
-    (measured 0.304); started from the first drive's calibration it is under 0.25 and at most 0.7
-    of that (measured 0.200); roll, pitch and yaw no worse (within 0.01 deg). (With the
-    accelerometer noise left at the default, a real car's allowance: 0.351 and 0.188.)"""
+    lateral accelerometer bias (0.04 m/s^2: 0.23 deg of bank) cannot be told from bank, so alone
+    its bank RMSE is over 0.2 deg (measured 0.261); started from the first drive's calibration it
+    is under 0.25 and at most 0.85 of that (measured 0.197); roll, pitch and yaw no worse (within
+    0.01 deg). (With the datasheet's sigma given as the drawn biases' own magnitudes, as before
+    2026-11-26: 0.304 and 0.200; with the accelerometer noise left at the default, a real car's
+    allowance: 0.351 and 0.188.)"""
     _, cal = campaign
     drive = synth_drive("banked_curve_right_7deg.toml", accel_bias_m_s2=ACCEL_BIAS_IMU)
     runs = {label: fuse(drive.imu, drive.vision, lever_arm_m=drive.lever_arm_m,
                         options=fusion_options_from_table(table)[0]).fused
             for label, table in (("alone", DATASHEET), ("calibrated", {**DATASHEET, **cal}))}
     alone, calibrated = (rmse_deg(runs[k], drive.truth, "bank_deg") for k in ("alone", "calibrated"))
-    assert alone > 0.3, alone
-    assert calibrated < 0.25 and calibrated < 0.7 * alone, (calibrated, alone)
+    assert alone > 0.2, alone
+    assert calibrated < 0.25 and calibrated < 0.85 * alone, (calibrated, alone)
     for col in ("roll_deg", "pitch_deg", "yaw_deg"):
         assert rmse_deg(runs["calibrated"], drive.truth, col) < rmse_deg(runs["alone"], drive.truth, col) + 0.01, col
 

@@ -32,7 +32,6 @@ import pandas as pd
 from tqdm import tqdm
 
 from fusion.errors import InputError
-from imu.config import ImuMount
 
 from .imu_model import simulate_imu
 from .render import Renderer
@@ -143,16 +142,16 @@ def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps
     lines += [f'{k} = "{v}"' for k, v in signals.items()]
     lines += ["", "[video]", f"fps = {fps!r}", f"start_s = {start_s!r}"]
     # The simulated IMU's datasheet values, as a user would enter theirs: gyro and
-    # accelerometer noise, and the accelerometer's calibration residual per vehicle axis. The
+    # accelerometer noise, and the accelerometer's calibration residual (the scenario's
+    # accel_bias_sigma_m_s2, not the bias this drive drew, which a user does not know). The
     # simulated vehicle has no vibration, suspension heave or road roughness (its specific
     # force is the model's to 0.002 m/s^2), so its accelerometer's noise is all the filter's
     # accelerometer allowance needs (the default is a real car's, NoiseModel.accel_meas_m_s2);
     # the other model-error allowances stay at their defaults.
-    bias_sigma_v = np.abs(ImuMount(imu.axes, imu.position_m).R_v_from_imu) @ np.abs(np.asarray(imu.accel_bias_m_s2))
     lines += ["", "[fusion]", f"gyro_noise_deg_s = {max(imu.gyro_noise_deg_s, 1e-3)!r}",
               "accel_noise_m_s2 = [" + ", ".join([repr(max(imu.accel_noise_m_s2, 1e-3))] * 3) + "]",
               f"accel_noise_rate_hz = {imu.rate_hz!r}",
-              "accel_bias_sigma_m_s2 = [" + ", ".join(repr(max(float(b), 0.005)) for b in bias_sigma_v) + "]",
+              f"accel_bias_sigma_m_s2 = {imu.accel_bias_sigma_m_s2!r}",
               ""]
     return "\n".join(lines)
 

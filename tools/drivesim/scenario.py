@@ -42,6 +42,11 @@ class ImuSpec:
     gyro_bias_walk_deg_s_sqrt_s: float = 0.0
     accel_noise_m_s2: float = 0.03
     accel_bias_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: The accelerometer's bias after calibration as its datasheet gives it (1-sigma, every
+    #: axis): what the drive's config tells the filter (``[fusion] accel_bias_sigma_m_s2``),
+    #: whatever bias this drive drew. Until 2026-11-26 the configs gave the filter the drawn
+    #: biases' own magnitudes per axis, which no user knows.
+    accel_bias_sigma_m_s2: float = 0.05
     accel_bias_walk_m_s2_sqrt_s: float = 0.0
     pitch_rate: bool = True
     speed_rate_hz: float = 50.0
@@ -215,6 +220,7 @@ def parse_scenario(data: dict, source: str) -> Scenario:
         gyro_bias_walk_deg_s_sqrt_s=im.get("gyro_bias_walk_deg_s_sqrt_s", "float", 0.0, min=0.0),
         accel_noise_m_s2=im.get("accel_noise_m_s2", "float", 0.03, min=0.0),
         accel_bias_m_s2=im.get("accel_bias_m_s2", "floats", (0.0, 0.0, 0.0), length=3),
+        accel_bias_sigma_m_s2=im.get("accel_bias_sigma_m_s2", "float", 0.05, min=1e-3, max=10.0),
         accel_bias_walk_m_s2_sqrt_s=im.get("accel_bias_walk_m_s2_sqrt_s", "float", 0.0, min=0.0),
         pitch_rate=im.get("pitch_rate", "bool", True),
         speed_rate_hz=im.get("speed_rate_hz", "float", 50.0, min=0.1, max=1000.0),
