@@ -743,6 +743,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.last_d2 = math.nan
         self._gate = {k: float(chi2.ppf(noise.gate_probability, k)) for k in (1, 2, 3, 4)}
         self._R_accel = np.diag(np.asarray(noise.accel_meas_m_s2, dtype=float) ** 2)
+        self._R_accel_scaled = (1.0, self._R_accel)   # (r_scale, R_accel * r_scale) last used
         self._sigma_params = noise._vision_sigma_params()
         self.curvature_rejected = 0
 
@@ -940,9 +941,16 @@ class AttitudeEKF(ExtendedKalmanFilter):
         z = np.asarray(accel_m_s2, dtype=float)
         ok, d2, x, P, y, K, Sm, SI = _gravity_update(
             self.x, self.P, z, np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float),
-            self.lever_arm_m, float(road_turn_rate_rad_s), self.has_pitch_rate, self._R_accel * r_scale,
+            self.lever_arm_m, float(road_turn_rate_rad_s), self.has_pitch_rate, self._accel_r(r_scale),
             self._gate[3])
         return self._accept(ok, d2, x, P, y, K, Sm, SI, z)
+
+    def _accel_r(self, r_scale: float) -> np.ndarray:
+        """The accelerometer's noise covariance times ``r_scale`` (one value for a whole drive:
+        kept, not multiplied out for every sample)."""
+        if r_scale != self._R_accel_scaled[0]:
+            self._R_accel_scaled = (r_scale, self._R_accel * r_scale)
+        return self._R_accel_scaled[1]
 
     def update_speed(self, speed_m_s: float) -> bool:
         return self.gated_update_state(S.SPEED, speed_m_s, self.noise.speed_meas_m_s**2)
@@ -961,7 +969,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
             self._rate_taus(u), self._q_per_s(u), n.gyro_noise_rad_s**2, n.yaw_rel_walk_no_lanes_rad_sqrt_s**2,
             float(speed_m_s), n.speed_meas_m_s**2, self._gate[1], np.asarray(accel_m_s2, dtype=float),
             np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float), self.lever_arm_m,
-            gravity, self._R_accel * r_scale, self._gate[3])
+            gravity, self._accel_r(r_scale), self._gate[3])
         self.x_post, self.P_post = self.x, self.P
         self.last_d2 = d2
         return road_rate, ok_v, ok_g

@@ -118,7 +118,7 @@ class StepRecord:
     imu_index: int   # index of the IMU sample at t1, or -1 for a vision time
 
 
-@dataclass
+@dataclass(slots=True)
 class _ImuSample:
     t: float
     gyro: np.ndarray
@@ -350,7 +350,7 @@ class FusionStream:
         inside the interval at their own times, then the measurements of ``s``. ``replayed``:
         results applied before in this interval (a replay), merged in time order; they do not
         defer their roll again."""
-        new = {id(v) for v in visions}
+        new = {id(v) for v in visions} if visions else ()
         visions = sorted((*visions, *replayed), key=_time_of) if replayed else visions
         s.applied = tuple(visions)
         prev = prev if prev is not None else (self._hist[-1] if self._hist else None)
