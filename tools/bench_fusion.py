@@ -70,7 +70,7 @@ def cached_full_drive(name: str) -> Path:
 
     path = SCENARIOS / f"{name}.toml"
     h = hashlib.sha256(path.read_bytes())
-    for f in ("road.py", "trajectory.py", "render.py", "imu_model.py", "canlog.py", "drive.py"):
+    for f in ("road.py", "trajectory.py", "render.py", "imu_model.py", "canlog.py", "drive.py", "scenario.py"):
         h.update((ROOT / "tools" / "drivesim" / f).read_bytes())
     folder = CACHE / f"full-{name}-{h.hexdigest()[:12]}"
     if not (folder / "config.toml").exists():
@@ -232,7 +232,8 @@ def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS) -> dict:
     truth = pd.read_csv(drive / "truth.csv")
     simulated = pd.read_csv(drive / "imu_truth.csv")[[f"accel_bias_{a}_m_s2" for a in "xyz"]].to_numpy()[0]
     t0 = float(vision["t_s"].iloc[0])
-    rng = np.random.default_rng(int(hashlib.sha256(drive.name.encode()).hexdigest()[:8], 16))
+    scenario = drive.name.removeprefix("full-").rsplit("-", 1)[0]    # the same draws whatever the render's key
+    rng = np.random.default_rng(int(hashlib.sha256(scenario.encode()).hexdigest()[:8], 16))
     inside, below, bank = [], [], []
     for _ in range(n):
         shift = rng.normal(0.0, sigma) - simulated
