@@ -310,18 +310,18 @@ class NoiseModel:
         times ``vision_sigma_scale``, floored at ``vision_sigma_floor_rad``, and in quadrature
         ``vision_road_model_error`` of the road-in-view effect the filter models for them (the
         lookahead's bank change, the twist's pitch and yaw errors)."""
-        return _vision_sigma_v(sigma_rad, road_effect_rad, *self._vision_sigma_params()[:3])
+        return _float_if_scalar(_vision_sigma_v(sigma_rad, road_effect_rad, *self._vision_sigma_params()[:3]))
 
     def twist_sigma_rad_m(self, twist_rad_m, sigma_rad_m):
         """The vision's road-twist 1-sigma as the filter uses it (rad/m; scalars or arrays): its
         own, floored at ``twist_sigma_floor_rad_m + twist_sigma_floor_rel |twist|``."""
-        return _twist_sigma_v(twist_rad_m, sigma_rad_m, *self._vision_sigma_params()[6:])
+        return _float_if_scalar(_twist_sigma_v(twist_rad_m, sigma_rad_m, *self._vision_sigma_params()[6:]))
 
     def curvature_sigma_1_m(self, curvature_1_m, sigma_1_m):
         """The lane-fit curvature's 1-sigma as the filter uses it (1/m; scalars or arrays): the
         fit's own (``curvature_meas_1_m`` where it gives none), floored at
         ``curvature_sigma_floor_1_m + curvature_sigma_floor_rel |curvature|``."""
-        return _curvature_sigma_v(curvature_1_m, sigma_1_m, *self._vision_sigma_params()[3:6])
+        return _float_if_scalar(_curvature_sigma_v(curvature_1_m, sigma_1_m, *self._vision_sigma_params()[3:6]))
 
     def _vision_sigma_params(self) -> np.ndarray:
         """The parameters of the three sigmas above, in the order the compiled updates take them
@@ -361,9 +361,26 @@ def _twist_sigma(twist, sigma, floor, rel):
     return _max_nan(sigma if math.isfinite(sigma) else 0.0, floor + rel * abs(twist))
 
 
-_vision_sigma_v = np.vectorize(_vision_sigma, otypes=[float])
-_curvature_sigma_v = np.vectorize(_curvature_sigma, otypes=[float])
-_twist_sigma_v = np.vectorize(_twist_sigma, otypes=[float])
+def _float_if_scalar(a):
+    """A vectorised function's result: a float for scalar arguments (``np.vectorize`` gives a
+    0-d array), the array otherwise."""
+    return float(a) if np.ndim(a) == 0 else a
+
+
+def _vectorize(f, n_out: int = 1):
+    """``np.vectorize`` of compiled ``f``, quiet about NaN arguments (NaN in, NaN out, as the
+    numpy expressions it replaced gave without a warning)."""
+    v = np.vectorize(f, otypes=[float] * n_out)
+
+    def call(*args):
+        with np.errstate(invalid="ignore"):
+            return v(*args)
+    return call
+
+
+_vision_sigma_v = _vectorize(_vision_sigma)
+_curvature_sigma_v = _vectorize(_curvature_sigma)
+_twist_sigma_v = _vectorize(_twist_sigma)
 
 
 def road_ahead_as_seen(bank_rad, curvature_1_m, distance_m, grade_rad=0.0):
@@ -425,7 +442,7 @@ def _road_turn(b, k, d, g=0.0):
     return b + math.atan(S), -drdx, phi
 
 
-_road_turn_v = np.vectorize(_road_turn, otypes=[float, float, float])
+_road_turn_v = _vectorize(_road_turn, 3)
 
 
 def twist_response_effect(response, tau_here_rad_m, tau_ahead_rad_m):
@@ -434,7 +451,8 @@ def twist_response_effect(response, tau_here_rad_m, tau_ahead_rad_m):
     rad/m of twist here and at the cross-sections), for the twist ``tau_here_rad_m`` at the
     vehicle and the vision's own measured twist ahead (NaN where it measured none: the twist
     here, a uniform twist). Scalars, or arrays with the gains along the first axis."""
-    return _twist_effect_v(response[0], response[1], response[4], response[5], tau_here_rad_m, tau_ahead_rad_m)
+    yaw, curvature = _twist_effect_v(response[0], response[1], response[4], response[5], tau_here_rad_m, tau_ahead_rad_m)
+    return _float_if_scalar(yaw), _float_if_scalar(curvature)
 
 
 @nb.njit(cache=True)
@@ -444,7 +462,7 @@ def _twist_effect(k_here, k_ahead, yaw_here, yaw_ahead, tau_here, tau_ahead):
     return yaw_here * tau_here + yaw_ahead * ahead, k_here * tau_here + k_ahead * ahead
 
 
-_twist_effect_v = np.vectorize(_twist_effect, otypes=[float, float])
+_twist_effect_v = _vectorize(_twist_effect, 2)
 
 
 @dataclass(frozen=True)
@@ -869,7 +887,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         error into information on the bank rate.
         """
         angles = np.asarray(m.angles_rad, dtype=float)
-        (ok, d2, y, K, Sm, SI, k_tried, k_ok, k_d2, k_y, k_S, k_K, x, P) = _vision_update(
+        (ok, d2, y, K, Sm, SI, k_tried, k_ok, k_d2, k_z, k_y, k_S, k_K, x, P) = _vision_update(
             self.x, self.P, angles, np.asarray(m.sigmas_rad, dtype=float), float(m.twist_m[0]), float(m.twist_m[1]),
             float(m.roll_lookahead_m), defer_roll, float(bank_rate_ahead), np.asarray(m.twist_response, dtype=float),
             float(m.road_twist_rad_m), float(m.curvature_1_m), float(m.curvature_sigma_1_m), self._sigma_params,
@@ -878,7 +896,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         if k_tried:
             if k_ok:
                 self._accept(True, k_d2, x, P, np.array([k_y]), k_K[:, None], np.array([[k_S]]),
-                             np.array([[1.0 / k_S]]), m.curvature_1_m)
+                             np.array([[1.0 / k_S]]), k_z)
             else:
                 self.last_d2 = k_d2
                 self.curvature_rejected += 1
@@ -1304,8 +1322,8 @@ def _vision_update(x, P, z, own_sig, twist_pitch_m, twist_yaw_m, roll_lookahead_
                    response, road_twist, curvature, curvature_sigma, sig_prm, gate1, gate_angles):
     """:meth:`AttitudeEKF.update_vision` (its docstring has the model): the angles, then the
     curvature. ``sig_prm``: :meth:`NoiseModel._vision_sigma_params`. Returns the angles' ``(ok,
-    d2, y, K, S, S^-1)``, the curvature's ``(tried, ok, d2, y, S, K)`` and the final ``(x,
-    P)``."""
+    d2, y, K, S, S^-1)``, the curvature's ``(tried, ok, d2, z, y, S, K)`` (``z``: the lane fit's
+    curvature less the twist's modelled effect on it) and the final ``(x, P)``."""
     v = x[8]
     lookahead = roll_lookahead_m if math.isfinite(roll_lookahead_m) and roll_lookahead_m > 0 else 0.0
     moving = v > 1.0
@@ -1364,18 +1382,19 @@ def _vision_update(x, P, z, own_sig, twist_pitch_m, twist_yaw_m, roll_lookahead_
     y = _angle_residual(z[first:].copy(), hx[first:].copy())
     ok, d2, x1, P1, K, Sm, SI = _gated_update(x, P, y, H[first:].copy(), R, gate_angles)
     # the lane-fit curvature, gated on its own
-    k_tried, k_ok, k_d2, k_y, k_S, k_K = False, False, math.nan, math.nan, math.nan, np.zeros(x.size)
+    k_tried, k_ok, k_d2, k_z, k_y, k_S, k_K = False, False, math.nan, math.nan, math.nan, math.nan, np.zeros(x.size)
     if math.isfinite(curvature):
         s_k = _curvature_sigma(curvature, curvature_sigma, sig_prm[3], sig_prm[4], sig_prm[5])
         s_k = math.hypot(s_k, sig_prm[2] * curvature_effect)
         k_tried = True
-        k_y = curvature - curvature_effect - x1[14]
+        k_z = curvature - curvature_effect
+        k_y = k_z - x1[14]
         k_S = P1[14, 14] + s_k * s_k
         k_d2 = k_y * k_y / k_S
         k_ok = not k_d2 > gate1
         if k_ok:
             x1, P1, k_K = _update_state(x1, P1, 14, k_y, k_S)
-    return ok, d2, y, K, Sm, SI, k_tried, k_ok, k_d2, k_y, k_S, k_K, x1, P1
+    return ok, d2, y, K, Sm, SI, k_tried, k_ok, k_d2, k_z, k_y, k_S, k_K, x1, P1
 
 
 @nb.njit(cache=True)

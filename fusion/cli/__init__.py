@@ -128,8 +128,10 @@ def settle_heap() -> None:
     Collected while they were imported, they cost 0.2-0.4 s of full collections that free
     nothing; scanned after, every full collection took 20-180 ms (a 60 s drive's run: 0.5 s in
     its main process, measured), and the vision workers' collections wrote to every page they
-    share with the run's process."""
-    gc.freeze()
+    share with the run's process. Once per process: a campaign's later drives would freeze the
+    earlier ones' uncollected cycles (the report's figures) for good (a review)."""
+    if not gc.get_freeze_count():
+        gc.freeze()
     gc.enable()
 
 
