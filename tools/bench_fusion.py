@@ -206,7 +206,7 @@ def without_pitch_gyro(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[dic
 
 
 #: Accelerometer-bias draws per drive for :func:`bias_draws`.
-BIAS_DRAWS = 20
+BIAS_DRAWS = 50
 
 
 def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS) -> dict:
