@@ -91,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     global _WATCH
     interrupted = _WATCH = _InterruptWatch(quiet=not args.debug)
+    collecting = gc.isenabled()
     gc.disable()   # until the command's imports are done (settle_heap)
     try:
         status = int(args.func(args) or 0)
@@ -116,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {_one_line(e)}", file=sys.stderr)
         return 2
     finally:
-        gc.enable()
+        (gc.enable if collecting else gc.disable)()   # as the caller had it
         interrupted.close()
         _WATCH = None
 

@@ -138,9 +138,9 @@ def _run(args: argparse.Namespace) -> int:
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
     args.partial_dir = tmp
+    settle_heap()
     # numba's compiler target, which every compiled kernel needs (0.1-0.3 s once a process, as
     # imports are): started here, before the vision workers fork from this process
-    settle_heap()
     start_numba()
     timings["start-up"] = time.perf_counter() - t_start
 
