@@ -78,6 +78,24 @@ def test_can_log_carries_the_true_imu_on_the_same_clock(drives):
     assert imu["t_s"].iloc[0] <= frames["t_s"].iloc[0] and frames["t_s"].iloc[-1] <= imu["t_s"].iloc[-1] + 0.01
 
 
+def test_config_tells_the_filter_the_datasheet_not_the_drawn_bias(drives):
+    """The drive's config gives the filter the accelerometer's residual as the scenario's datasheet
+    states it (``accel_bias_sigma_m_s2``, 0.05 m/s^2 here), whatever bias the drive drew: until
+    2026-11-26 it gave the drawn biases' own magnitudes, which no user knows and which set the
+    bank's sigma on a single curve."""
+    from drivesim.scenario import load_scenario
+
+    from fusion.options import fusion_options_from_table
+
+    d = drives["tiny_banked_curve"]
+    scenario = load_scenario(d / "scenario.toml")
+    opts, _ = fusion_options_from_table(load_config(d / "config.toml").extra["fusion"])
+    np.testing.assert_allclose(np.broadcast_to(opts.noise.init_accel_bias_m_s2, (3,)),
+                               scenario.imu.accel_bias_sigma_m_s2, rtol=1e-12)
+    drawn = np.abs(pd.read_csv(d / "imu_truth.csv")[[f"accel_bias_{a}_m_s2" for a in "xyz"]].to_numpy()[0])
+    assert not np.allclose(drawn, scenario.imu.accel_bias_sigma_m_s2), drawn
+
+
 def test_car_drive_with_distortion_png_frames_and_no_pitch_rate(drives):
     d = drives["tiny_dlc_car_distorted"]
     pngs = sorted((d / "video").glob("*.png"))
