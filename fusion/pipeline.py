@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from vision.video import TWIST_RESPONSE_COLUMNS
+from vision.video import TWIST_RESPONSE_COLUMNS, current_names
 
 from .ekf import GRAVITY_M_S2, S, relative_outputs
 from .engine import FusionOptions, FusionStream
@@ -86,7 +86,7 @@ def vision_inputs(vision: pd.DataFrame) -> pd.DataFrame:
     missing = [c for c in need if c not in vision.columns]
     if missing:
         raise InputError(f"vision table lacks column(s) {', '.join(missing)}")
-    v = vision.sort_values("t_s", kind="stable").reset_index(drop=True)
+    v = current_names(vision).sort_values("t_s", kind="stable").reset_index(drop=True)
     for c in ("roll_sigma_deg", "pitch_sigma_deg", "yaw_sigma_deg"):
         if c not in v.columns:
             v[c] = 0.3  # the paper's order of magnitude when the estimator gives none

@@ -373,7 +373,7 @@ def test_vision_command_with_the_can_log_is_the_runs_vision(tmp_path):
     assert "map off" not in r.stdout
     ran = pd.read_csv(run_out / "vision.csv")
     alone = pd.read_csv(tmp_path / "with_can.csv")
-    pd.testing.assert_frame_equal(alone.drop(columns="ms"), ran.drop(columns="ms"))   # all but the timing
+    pd.testing.assert_frame_equal(alone.drop(columns="estimator_ms"), ran.drop(columns="estimator_ms"))   # all but the timing
     assert (ran["road_twist_bank_change_deg"] != 0).sum() >= 40
     r = vifusion(*common, "--out", tmp_path / "without.csv")
     assert r.returncode == 0, r.stderr

@@ -550,7 +550,7 @@ def test_twist_changing_across_the_view_is_modelled(drive, forward):
     bank_of_s = lambda s: np.interp(s, tr["station_m"], np.radians(tr["bank_deg"]))   # noqa: E731
     here = (bank_of_s(station + 1.0) - bank_of_s(station - 1.0)) / 2.0
     ahead = (bank_of_s(station + L + 1.0) - bank_of_s(station + L - 1.0)) / 2.0
-    g = {"curvature_per_twist_here": -1.0, "curvature_per_twist_ahead": 1.5, "pitch_per_twist_here_m": 0.0,
+    g = {"curvature_per_twist_here_1_rad": -1.0, "curvature_per_twist_ahead_1_rad": 1.5, "pitch_per_twist_here_m": 0.0,
          "pitch_per_twist_ahead_m": 0.0, "yaw_per_twist_here_m": -9.2, "yaw_per_twist_ahead_m": 2.6}
     v = drive.vision.copy()
     # the roll and twist the cameras' cross-sections see L ahead, the road's turn included
@@ -559,7 +559,7 @@ def test_twist_changing_across_the_view_is_modelled(drive, forward):
     seen, turn_twist, phi = ekf.road_ahead_as_seen(bank_of_s(station + L), kappa, L)
     v["roll_deg"] -= np.degrees(seen - bank_of_s(station))
     v["yaw_deg"] += np.degrees(g["yaw_per_twist_here_m"] * here + g["yaw_per_twist_ahead_m"] * ahead)
-    v["curvature_1_m"] += g["curvature_per_twist_here"] * here + g["curvature_per_twist_ahead"] * ahead
+    v["curvature_1_m"] += g["curvature_per_twist_here_1_rad"] * here + g["curvature_per_twist_ahead_1_rad"] * ahead
     assert np.degrees(np.abs(v["yaw_deg"] - drive.vision["yaw_deg"])).max() > 1.0   # runoffs worth testing
     v = v.assign(roll_lookahead_m=L, pitch_per_twist_m=0.0, yaw_per_twist_m=(-9.2 + 2.6) / 2.0,
                  road_twist_deg_per_m=np.degrees(ahead * np.cos(phi) + turn_twist),
@@ -571,6 +571,11 @@ def test_twist_changing_across_the_view_is_modelled(drive, forward):
         got = rmse_deg(modelled, tr, col)
         assert got < ref + 0.05, (col, got, ref)
         assert rmse_deg(uniform, tr, col) > (2.0 if col == "yaw_deg" else 1.0) * got, (col, rmse_deg(uniform, tr, col), got)
+    # a vision.csv written before the curvature columns carried their unit gives the same run
+    old_names = v.assign(**g).rename(columns={"curvature_per_twist_here_1_rad": "curvature_per_twist_here",
+                                              "curvature_per_twist_ahead_1_rad": "curvature_per_twist_ahead"})
+    np.testing.assert_array_equal(fuse(drive.imu, old_names, lever_arm_m=drive.lever_arm_m, options=OPTIONS).fused,
+                                  modelled)
 
 
 def _roll_to_cross_section_deg(road, s: float, d: float, ahead_m: float) -> float:

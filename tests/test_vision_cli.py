@@ -279,7 +279,7 @@ def test_the_debug_video_is_the_tables_run(tmp_path):
     assert cli_main([*common, "--out", str(tmp_path / "plain.csv")]) == 0
     assert cli_main([*common, "--out", str(tmp_path / "dbg.csv"), "--debug-video", str(tmp_path / "dbg.mp4")]) == 0
     a, b = pd.read_csv(tmp_path / "plain.csv"), pd.read_csv(tmp_path / "dbg.csv")
-    pd.testing.assert_frame_equal(a.drop(columns="ms"), b.drop(columns="ms"))
+    pd.testing.assert_frame_equal(a.drop(columns="estimator_ms"), b.drop(columns="estimator_ms"))
     cap = cv2.VideoCapture(str(tmp_path / "dbg.mp4"))
     sizes = set()
     while True:

@@ -53,7 +53,7 @@ def with_truth(vision: pd.DataFrame, truth: pd.DataFrame, inputs) -> pd.DataFram
     if "curvature" in inputs:
         v["curvature_1_m"] = np.interp(t, truth["t_s"], truth["curvature_1_m"])
         v["curvature_sigma_1_m"] = 1e-5
-        v["curvature_per_twist_here"] = v["curvature_per_twist_ahead"] = 0.0
+        v["curvature_per_twist_here_1_rad"] = v["curvature_per_twist_ahead_1_rad"] = 0.0
     return v
 
 

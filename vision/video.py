@@ -29,7 +29,7 @@ __all__ = ["FrameSource", "count_frames", "default_workers", "estimate_video", "
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 #: ``vision.csv``'s columns of :attr:`vision.estimator.VisionEstimate.twist_response`, in its order.
-TWIST_RESPONSE_COLUMNS = ("curvature_per_twist_here", "curvature_per_twist_ahead", "pitch_per_twist_here_m",
+TWIST_RESPONSE_COLUMNS = ("curvature_per_twist_here_1_rad", "curvature_per_twist_ahead_1_rad", "pitch_per_twist_here_m",
                           "pitch_per_twist_ahead_m", "yaw_per_twist_here_m", "yaw_per_twist_ahead_m")
 
 #: Columns of ``vision.csv`` (INTERFACE.md: the first six, then quality columns).
@@ -39,8 +39,20 @@ VISION_COLUMNS = (
     "curvature_1_m", "curvature_sigma_1_m", "roll_lookahead_m",
     "pitch_per_twist_m", "yaw_per_twist_m", "road_twist_deg_per_m", "road_twist_sigma_deg_per_m",
     *TWIST_RESPONSE_COLUMNS, "road_twist_bank_change_deg",
-    "lateral_offset_m", "line_spacing_m", "n_lines", "roll_equation", "vp_x_px", "vp_y_px", "edge_rms_px", "iterations", "warps", "ms", "reason",
+    "lateral_offset_m", "line_spacing_m", "n_lines", "roll_equation", "vp_x_px", "vp_y_px", "edge_rms_px", "iterations", "warps", "estimator_ms", "reason",
 )
+
+#: Columns of ``vision.csv`` renamed on 2026-11-26 (a unit in every name): old name -> new one.
+#: :func:`current_names` reads a table written before with the new names.
+RENAMED_COLUMNS = {"curvature_per_twist_here": "curvature_per_twist_here_1_rad",
+                   "curvature_per_twist_ahead": "curvature_per_twist_ahead_1_rad", "ms": "estimator_ms"}
+
+
+def current_names(table):
+    """``table`` (a vision table) with the columns of :data:`RENAMED_COLUMNS` under their
+    current names: a ``vision.csv`` written before the renaming keeps its twist response."""
+    old = {a: b for a, b in RENAMED_COLUMNS.items() if a in table.columns and b not in table.columns}
+    return table.rename(columns=old) if old else table
 
 
 class FrameSource:
@@ -183,7 +195,7 @@ def vision_row(t_s: float, frame: int, est: VisionEstimate, ms: float = math.nan
         "lateral_offset_m": est.lateral_offset_m, "line_spacing_m": est.line_spacing_m,
         "n_lines": est.n_lines, "roll_equation": est.roll_equation,
         "vp_x_px": est.vp_px[0], "vp_y_px": est.vp_px[1], "edge_rms_px": est.edge_rms_px,
-        "iterations": est.iterations, "warps": est.warps, "ms": ms, "reason": est.reason,
+        "iterations": est.iterations, "warps": est.warps, "estimator_ms": ms, "reason": est.reason,
     }
     if not est.valid:
         row.update(dict.fromkeys(ESTIMATE_COLUMNS, math.nan))
@@ -270,7 +282,7 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         "frames_read": n_read,
         "frames_missing": sum(1 for f in want if f not in done),
         "valid": int(table["valid"].sum()) if len(table) else 0,
-        "median_ms": float(table["ms"].median()) if len(table) else math.nan,
+        "median_ms": float(table["estimator_ms"].median()) if len(table) else math.nan,
         "workers": workers,
     }
     return table, stats
