@@ -92,8 +92,15 @@ def test_config_tells_the_filter_the_datasheet_not_the_drawn_bias(drives):
     opts, _ = fusion_options_from_table(load_config(d / "config.toml").extra["fusion"])
     np.testing.assert_allclose(np.broadcast_to(opts.noise.init_accel_bias_m_s2, (3,)),
                                scenario.imu.accel_bias_sigma_m_s2, rtol=1e-12)
-    drawn = np.abs(pd.read_csv(d / "imu_truth.csv")[[f"accel_bias_{a}_m_s2" for a in "xyz"]].to_numpy()[0])
-    assert not np.allclose(drawn, scenario.imu.accel_bias_sigma_m_s2), drawn
+    # and with a bias drawn: the config the simulator writes for this scenario with one
+    import dataclasses
+    import tomllib
+
+    from drivesim.drive import _config_toml
+
+    biased = dataclasses.replace(scenario, imu=dataclasses.replace(scenario.imu, accel_bias_m_s2=(0.02, -0.03, 0.01)))
+    fusion = tomllib.loads(_config_toml(biased, "imu.dbc", {}, 15.0, 0.0))["fusion"]
+    assert fusion["accel_bias_sigma_m_s2"] == scenario.imu.accel_bias_sigma_m_s2 == 0.05, fusion
 
 
 def test_car_drive_with_distortion_png_frames_and_no_pitch_rate(drives):

@@ -82,6 +82,13 @@ def cached_full_drive(name: str) -> Path:
 SPEED_RUNS = 3
 
 
+def read_vision(run_dir: Path) -> pd.DataFrame:
+    """A run's ``vision.csv``, under the current column names (``vision.video.current_names``)."""
+    from vision.video import current_names
+
+    return current_names(pd.read_csv(run_dir / "vision.csv"))
+
+
 def run_cli(drive: Path, out: Path, *extra: str) -> tuple[float, dict]:
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "fusion", "run", "--drive", str(drive), "--out", str(out), "--quiet",
@@ -153,7 +160,7 @@ def lane_loss(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[float, float
     opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
     log = next(p for p in drive.glob("can.*"))
     imu, _ = read_log(log, cfg.can, cfg.imu)
-    vision = pd.read_csv(run_dir / "vision.csv")
+    vision = read_vision(run_dir)
     truth = pd.read_csv(drive / "truth.csv")
     t0 = float(vision["t_s"].iloc[0])
     lost = (vision["t_s"] >= t0 + t_loss_s) & (vision["t_s"] < t0 + t_loss_s + 5.0)
@@ -191,7 +198,7 @@ def without_pitch_gyro(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[dic
     cfg = load_config(drive / "config.toml")
     opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
     imu, _ = read_log(next(p for p in drive.glob("can.*")), cfg.can, cfg.imu)
-    vision = pd.read_csv(run_dir / "vision.csv")
+    vision = read_vision(run_dir)
     truth = pd.read_csv(drive / "truth.csv")
     t0 = float(vision["t_s"].iloc[0])
     f = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts, has_pitch_rate=False).fused
@@ -229,7 +236,7 @@ def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS) -> dict:
     opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
     sigma = np.broadcast_to(np.asarray(opts.noise.init_accel_bias_m_s2, dtype=float), (3,))
     imu, _ = read_log(next(p for p in drive.glob("can.*")), cfg.can, cfg.imu)
-    vision = pd.read_csv(run_dir / "vision.csv")
+    vision = read_vision(run_dir)
     truth = pd.read_csv(drive / "truth.csv")
     simulated = pd.read_csv(drive / "imu_truth.csv")[[f"accel_bias_{a}_m_s2" for a in "xyz"]].to_numpy()[0]
     t0 = float(vision["t_s"].iloc[0])
@@ -261,7 +268,7 @@ def road_in_view(drive: Path, run_dir: Path) -> dict:
     uses, :func:`_response_effect`)."""
     from fusion.metrics import interp_truth
 
-    v = pd.read_csv(run_dir / "vision.csv")
+    v = read_vision(run_dir)
     v = v[v["valid"] == 1]
     truth = pd.read_csv(drive / "truth.csv")
     t = v["t_s"].to_numpy()
@@ -334,7 +341,7 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     effect added, here from the true twist; the filter takes it from its own bank rate)."""
     from fusion.metrics import interp_truth
 
-    v = pd.read_csv(run_dir / "vision.csv")
+    v = read_vision(run_dir)
     v = v[v["valid"] == 1]
     truth = pd.read_csv(drive / "truth.csv")
     tt = truth["t_s"].to_numpy()
@@ -412,7 +419,7 @@ def time_offsets(drive: Path, run_dir: Path) -> list:
 
     cfg = load_config(drive / "config.toml")
     imu, _ = read_log(next(p for p in drive.glob("can.*")), cfg.can, cfg.imu)
-    vision = pd.read_csv(run_dir / "vision.csv")
+    vision = read_vision(run_dir)
     out = []
     for shift in OFFSET_SHIFTS_S:
         est = estimate_camera_offset(vision.assign(t_s=vision["t_s"] + shift), imu)
@@ -428,7 +435,7 @@ def filter_rate(drive: Path) -> float:
 
     cfg = load_config(drive / "config.toml")
     imu, _ = read_log(next(drive.glob("can.*")), cfg.can, cfg.imu)
-    vision = pd.read_csv(drive.parent / (drive.name + "-run") / "vision.csv")
+    vision = read_vision(drive.parent / (drive.name + "-run"))
     rates = []
     for _ in range(3):
         t0 = time.perf_counter()
@@ -448,7 +455,7 @@ def live_cost_us(drive: Path) -> float:
 
     cfg = load_config(drive / "config.toml")
     msgs = list(can.LogReader(next(drive.glob("can.*"))))
-    vis = pd.read_csv(drive.parent / (drive.name + "-run") / "vision.csv")
+    vis = read_vision(drive.parent / (drive.name + "-run"))
     ests = [(r.t_s, VisionEstimate(math.radians(r.roll_deg), math.radians(r.pitch_deg), math.radians(r.yaw_deg),
                                    math.radians(r.roll_sigma_deg), math.radians(r.pitch_sigma_deg),
                                    math.radians(r.yaw_sigma_deg), bool(r.valid), curvature_1_m=r.curvature_1_m,
