@@ -89,6 +89,19 @@ def read_vision(run_dir: Path) -> pd.DataFrame:
     return current_names(pd.read_csv(run_dir / "vision.csv"))
 
 
+def filter_inputs(drive: Path, run_dir: Path):
+    """What the forward filter is rerun on: the drive's config and fusion options (its
+    ``[fusion]`` table), its decoded CAN log, the run's vision and the drive's truth."""
+    from fusion.config import load_config
+    from fusion.options import fusion_options_from_table
+    from imu import read_log
+
+    cfg = load_config(drive / "config.toml")
+    opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
+    imu, _ = read_log(next(p for p in drive.glob("can.*")), cfg.can, cfg.imu)
+    return cfg, opts, imu, read_vision(run_dir), pd.read_csv(drive / "truth.csv")
+
+
 def run_cli(drive: Path, out: Path, *extra: str) -> tuple[float, dict]:
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "fusion", "run", "--drive", str(drive), "--out", str(out), "--quiet",
@@ -149,19 +162,10 @@ def lane_loss(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[float, float
     within the issue's roll bar (``BARS``); either limit is widened to the error of the same run
     without the loss (plus a tenth of the limit) where that is larger: a runoff's own error
     after the loss is not the loss's."""
-    from fusion.config import load_config
     from fusion.metrics import interp_truth
     from fusion.pipeline import fuse
-    from imu import read_log
 
-    from fusion.options import fusion_options_from_table
-
-    cfg = load_config(drive / "config.toml")
-    opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
-    log = next(p for p in drive.glob("can.*"))
-    imu, _ = read_log(log, cfg.can, cfg.imu)
-    vision = read_vision(run_dir)
-    truth = pd.read_csv(drive / "truth.csv")
+    cfg, opts, imu, vision, truth = filter_inputs(drive, run_dir)
     t0 = float(vision["t_s"].iloc[0])
     lost = (vision["t_s"] >= t0 + t_loss_s) & (vision["t_s"] < t0 + t_loss_s + 5.0)
     base = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts).fused
@@ -189,17 +193,10 @@ def without_pitch_gyro(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[dic
     """RMSE after 2 s of the forward filter on the run's vision and the drive's CAN log with the
     pitch-rate channel left out, and its worst roll error with the lanes lost as in
     :func:`lane_loss`."""
-    from fusion.config import load_config
     from fusion.metrics import interp_truth, rmse_table
-    from fusion.options import fusion_options_from_table
     from fusion.pipeline import fuse
-    from imu import read_log
 
-    cfg = load_config(drive / "config.toml")
-    opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
-    imu, _ = read_log(next(p for p in drive.glob("can.*")), cfg.can, cfg.imu)
-    vision = read_vision(run_dir)
-    truth = pd.read_csv(drive / "truth.csv")
+    cfg, opts, imu, vision, truth = filter_inputs(drive, run_dir)
     t0 = float(vision["t_s"].iloc[0])
     f = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts, has_pitch_rate=False).fused
     acc = rmse_table(f, truth, t0 + 2.0, angles=("roll", "pitch", "yaw", "bank"))
@@ -226,18 +223,11 @@ def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS) -> dict:
     share in band pooled over the draws (and below it), and the bank RMSE after 2 s over the
     draws: median, 90th percentile, largest, share within the bar; and per angle (roll, pitch,
     yaw, bank) the share of samples whose error is within 2 sigma (0.954 for a consistent one)."""
-    from fusion.config import load_config
     from fusion.metrics import consistency, rmse_table
-    from fusion.options import fusion_options_from_table
     from fusion.pipeline import fuse
-    from imu import read_log
 
-    cfg = load_config(drive / "config.toml")
-    opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
+    cfg, opts, imu, vision, truth = filter_inputs(drive, run_dir)
     sigma = np.broadcast_to(np.asarray(opts.noise.init_accel_bias_m_s2, dtype=float), (3,))
-    imu, _ = read_log(next(p for p in drive.glob("can.*")), cfg.can, cfg.imu)
-    vision = read_vision(run_dir)
-    truth = pd.read_csv(drive / "truth.csv")
     simulated = pd.read_csv(drive / "imu_truth.csv")[[f"accel_bias_{a}_m_s2" for a in "xyz"]].to_numpy()[0]
     t0 = float(vision["t_s"].iloc[0])
     scenario = drive.name.removeprefix("full-").rsplit("-", 1)[0]    # the same draws whatever the render's key
