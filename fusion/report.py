@@ -195,6 +195,10 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
     if scored:
         fig, axes = plt.subplots(len(scored), 1, figsize=(11, 2.25 * len(scored)), sharex=True, squeeze=False)
         axes = axes[:, 0]
+        # the truth at the vision's and the IMU-only run's times, once for every angle
+        tv = vis["t_s"].to_numpy() + r.camera_time_offset_s if vis is not None and len(vis) else None
+        truth_v = interp_truth(r.truth, tv) if tv is not None else None
+        truth_i = interp_truth(r.truth, r.imu_only["t_s"].to_numpy()) if r.imu_only is not None else None
         for ax, a in zip(axes, scored):
             e = wrap_deg(f[f"{a}_deg"].to_numpy() - truth[f"{a}_deg"].to_numpy())
             s = f[f"{a}_sigma_deg"].to_numpy()
@@ -207,15 +211,12 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             band2 = band2[np.isfinite(band2)]
             wide = float(np.percentile(band2, 95)) if band2.size else math.nan
             _scale_to(ax, [es, -es, [wide, -wide]])
-            if a in ("roll", "pitch", "yaw") and vis is not None and len(vis):
-                tv = vis["t_s"].to_numpy() + r.camera_time_offset_s
-                tru_v = interp_truth(r.truth, tv)[f"{a}_deg"].to_numpy()
-                ax.plot(tv - t0, wrap_deg(vis[f"{a}_deg"].to_numpy() - tru_v), ".", ms=2, color="tab:orange", alpha=0.5,
-                        label="vision - truth")
-            if a.endswith("_world") and r.imu_only is not None:
-                tru_i = interp_truth(r.truth, r.imu_only["t_s"].to_numpy())[f"{a}_deg"].to_numpy()
-                ax.plot(r.imu_only["t_s"] - t0, wrap_deg(r.imu_only[f"{a}_deg"].to_numpy() - tru_i), color="tab:green",
-                        lw=0.8, label="IMU only - truth")
+            if a in ("roll", "pitch", "yaw") and truth_v is not None:
+                ax.plot(tv - t0, wrap_deg(vis[f"{a}_deg"].to_numpy() - truth_v[f"{a}_deg"].to_numpy()), ".", ms=2,
+                        color="tab:orange", alpha=0.5, label="vision - truth")
+            if a.endswith("_world") and truth_i is not None:
+                ax.plot(r.imu_only["t_s"] - t0, wrap_deg(r.imu_only[f"{a}_deg"].to_numpy() - truth_i[f"{a}_deg"].to_numpy()),
+                        color="tab:green", lw=0.8, label="IMU only - truth")
             ax.set_ylabel(f"{a} error [deg]")
             ax.grid(alpha=0.3)
             ax.legend(loc="upper right", fontsize=8, ncol=3)

@@ -211,6 +211,11 @@ def workers_arg(text: str) -> int:
     return n
 
 
+def mapped_as(mapping, channel: str) -> str:
+    """How the config's ``[can] signals`` maps IMU channel ``channel``, for an error line."""
+    return f"mapped as {mapping.signals[channel]}" if channel in mapping.signals else "not mapped in [can] signals"
+
+
 def write_table(df, path: Path) -> None:
     """One output table, CSV or Parquet by the suffix, written to ``PATH.partial`` and renamed.
     CSV numbers keep 9 significant digits (a fixed 6 decimals kept 2 of a curvature sigma of

@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import refuse_inputs_as_outputs, workers_arg, write_tables
+from . import mapped_as, refuse_inputs_as_outputs, workers_arg, write_tables
 
 __all__ = ["add_parser", "run"]
 
@@ -155,8 +155,7 @@ def _run(args: argparse.Namespace) -> int:
     if missing:
         channel = dict(zip(VALUE_COLUMNS, CHANNELS))[missing[0]]
         raise InputError(f"{files.can_log}: IMU channel {missing[0]} never seen (needed by the filter; "
-                         + (f"mapped as {mapping.signals[channel]})" if channel in mapping.signals
-                            else "not mapped in [can] signals)"))
+                         f"{mapped_as(mapping, channel)})")
     if truth is not None:
         check_truth_overlap(truth, imu["t_s"].to_numpy(), files.truth, files.can_log)
     has_pitch_rate = "gyro_y_rad_s" not in unavailable and "gyro_y_rad_s" not in never

@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from . import refuse_inputs_as_outputs, workers_arg, write_table
+from . import mapped_as, refuse_inputs_as_outputs, workers_arg, write_table
 
 
 def add_parser(sub) -> None:
@@ -124,7 +124,5 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
         print(f"warning: {outside}", file=sys.stderr)
     speeds = frame_speeds(imu, t)
     if not np.isfinite(speeds).any():
-        where = (f"mapped as {mapping.signals['speed']}" if "speed" in mapping.signals
-                 else "not mapped in [can] signals")
-        raise InputError(f"{args.can}: no wheel speed at any frame ({where})")
+        raise InputError(f"{args.can}: no wheel speed at any frame ({mapped_as(mapping, 'speed')})")
     return speeds
