@@ -12,9 +12,9 @@ import numpy as np
 import pandas as pd
 from scipy.stats import chi2
 
-from vision.frames import wrap_angle
+from vision.frames import R_from_rpy_scalar, rpy_from_R_scalar, so3_exp_scalar, wrap_angle
 
-__all__ = ["ANGLES", "rmse_table", "interp_truth", "wrap_deg", "consistency", "Consistency"]
+__all__ = ["ANGLES", "rmse_table", "interp_truth", "wrap_deg", "consistency", "Consistency", "gyro_attitude_drift"]
 
 #: Output angles compared with truth, as (column stem, truth column).
 ANGLES = ("roll", "pitch", "yaw", "bank", "roll_world", "pitch_world")
@@ -100,3 +100,33 @@ def consistency(fused: pd.DataFrame, truth: pd.DataFrame, cov: np.ndarray | None
     within = {a: float(np.mean(np.abs(e[:, i]) < 2 * sig[:, i])) for i, a in enumerate(angles)}
     return Consistency(k, (float(lo), float(hi)), float(inside.mean()), float((nees > hi).mean()),
                        float((nees < lo).mean()), float(nees.mean()), within)
+
+
+def gyro_attitude_drift(t_s: np.ndarray, gyro_rad_s: np.ndarray, truth: pd.DataFrame,
+                        window_s: float = 1.0) -> np.ndarray:
+    """What a gyro leaves out of the attitude: the vehicle-frame rates ``gyro_rad_s`` (N, 3; less
+    their bias) integrated as the filter propagates (the rates averaged over each interval,
+    exact rotation), over back-to-back windows of ``window_s``, each started from the truth's
+    attitude (``roll_world_deg``, ``pitch_world_deg``, ``yaw_world_deg`` at ``t_s``); the RMS
+    over the windows of the ZYX angles' error at their ends, per sqrt(window), deg/sqrt(s)
+    (roll, pitch, yaw). Against the filter's process noise this is ``sqrt(gyro_noise^2 dt +
+    attitude_walk^2)``: the gyro's white noise integrated, and what the gyro does not see."""
+    t = np.asarray(t_s, dtype=float)
+    w = np.asarray(gyro_rad_s, dtype=float)
+    tr = interp_truth(truth, t)
+    rpy = np.radians(np.stack([tr[f"{a}_world_deg"].to_numpy() for a in ("roll", "pitch", "yaw")], axis=1))
+    errors = []
+    i = 0
+    while True:
+        j = int(np.searchsorted(t, t[i] + window_s - 1e-9))
+        if j >= len(t):
+            break
+        if np.all(np.isfinite(rpy[[i, j]])) and np.all(np.isfinite(w[i:j + 1])):
+            R = R_from_rpy_scalar(*rpy[i])
+            for k in range(i, j):
+                R = R @ so3_exp_scalar(*(0.5 * (w[k] + w[k + 1]) * (t[k + 1] - t[k])))
+            errors.append(wrap_angle(np.array(rpy_from_R_scalar(R)) - rpy[j]))
+        i = j
+    if not errors:
+        raise ValueError("gyro_attitude_drift: no window of the truth's and the gyro's span")
+    return np.degrees(np.sqrt(np.mean(np.square(errors), axis=0))) / math.sqrt(window_s)

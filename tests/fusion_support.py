@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from drivesim.drive import build_road, truth_frame
+from drivesim.drive import SIM_ATTITUDE_WALK_DEG_SQRT_S, build_road, truth_frame
 from drivesim.imu_model import simulate_imu
 from drivesim.scenario import load_scenario
 from drivesim.trajectory import Trajectory
@@ -31,8 +31,11 @@ SIM_ACCEL_NOISE_M_S2 = 0.03
 #: scenarios' ``accel_bias_sigma_m_s2``; not the bias drawn, ``synth_drive``'s 0.03 / 0.01 / 0.03,
 #: which the filter was told until 2026-11-26: every test here passed with either), and its
 #: accelerometer noise, all the simulated vehicle's specific force leaves out (the default allows
-#: for a real car's suspension and road, ``NoiseModel.accel_meas_m_s2``).
-SIM_NOISE = dict(init_accel_bias_m_s2=0.05, accel_meas_m_s2=(SIM_ACCEL_NOISE_M_S2,) * 3)
+#: for a real car's suspension and road, ``NoiseModel.accel_meas_m_s2``), and the attitude
+#: allowance for its gyros, which see every rotation (``SIM_ATTITUDE_WALK_DEG_SQRT_S``; the
+#: default allows for a real vehicle's).
+SIM_NOISE = dict(init_accel_bias_m_s2=0.05, accel_meas_m_s2=(SIM_ACCEL_NOISE_M_S2,) * 3,
+                 pitch_walk_rad_sqrt_s=math.radians(SIM_ATTITUDE_WALK_DEG_SQRT_S))
 
 
 @dataclasses.dataclass

@@ -7,6 +7,7 @@ from the truth."""
 import numpy as np
 import pytest
 
+from drivesim.drive import SIM_ATTITUDE_WALK_DEG_SQRT_S
 from fusion.calibration import calibration_table, read_calibration, write_calibration
 from fusion.errors import ConfigError
 from fusion.options import fusion_options_from_table
@@ -16,8 +17,10 @@ from fusion_support import SIM_ACCEL_NOISE_M_S2, rmse_deg, synth_drive
 
 ACCEL_BIAS_IMU = (0.05, -0.04, 0.02)   # IMU axes (x, -y, -z of the vehicle): 0.04 m/s^2 lateral
 #: What the simulator writes into a drive's config (tools/drivesim/drive.py): the accelerometer's
-#: datasheet residual after calibration as 1-sigma (not the bias drawn), and its noise.
-DATASHEET = {"accel_bias_sigma_m_s2": 0.05, "accel_noise_m_s2": [SIM_ACCEL_NOISE_M_S2] * 3}
+#: datasheet residual after calibration as 1-sigma (not the bias drawn), its noise, and the
+#: attitude allowance for its gyros.
+DATASHEET = {"accel_bias_sigma_m_s2": 0.05, "accel_noise_m_s2": [SIM_ACCEL_NOISE_M_S2] * 3,
+             "attitude_walk_deg_sqrt_s": SIM_ATTITUDE_WALK_DEG_SQRT_S}
 
 
 @pytest.fixture(scope="module")

@@ -39,9 +39,18 @@ from .road import Road, Segment
 from .scenario import Scenario
 from .trajectory import Trajectory
 
-__all__ = ["DriveFiles", "build_road", "render_frames", "simulate", "truth_frame"]
+__all__ = ["DriveFiles", "SIM_ATTITUDE_WALK_DEG_SQRT_S", "build_road", "render_frames", "simulate", "truth_frame"]
 
 VIDEO_NAMES = {"mp4v": "video.mp4", "ffv1": "video.avi", "mjpg": "video.avi", "png": "video"}
+#: The attitude motion the simulated gyros do not see, as the filter's allowance for it
+#: (``[fusion] attitude_walk_deg_sqrt_s``; the default, 0.05, is for a real vehicle's gyros):
+#: the simulated IMU's rates are the trajectory's exactly, plus bias and white noise, so what
+#: integrating them leaves out beyond that noise is the integration's discretisation of the
+#: rider's pitching. Measured with :func:`fusion.metrics.gyro_attitude_drift` (decoded rates less
+#: the true bias, windows of 1 and 4 s) on the bundled sample drive and the five benchmark
+#: drives: at most 0.005 deg/sqrt(s) in roll and yaw and 0.014 in pitch beyond the gyro noise's
+#: 0.005 (``tests/test_cli_simulate.py`` checks it on the sample drive).
+SIM_ATTITUDE_WALK_DEG_SQRT_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -147,11 +156,13 @@ def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps
     # simulated vehicle has no vibration, suspension heave or road roughness (its specific
     # force is the model's to 0.002 m/s^2), so its accelerometer's noise is all the filter's
     # accelerometer allowance needs (the default is a real car's, NoiseModel.accel_meas_m_s2);
-    # the other model-error allowances stay at their defaults.
+    # likewise its gyros have no scale-factor error, misalignment or vibration, so the attitude
+    # allowance is SIM_ATTITUDE_WALK_DEG_SQRT_S. The road-model allowances stay at their defaults.
     lines += ["", "[fusion]", f"gyro_noise_deg_s = {max(imu.gyro_noise_deg_s, 1e-3)!r}",
               "accel_noise_m_s2 = [" + ", ".join([repr(max(imu.accel_noise_m_s2, 1e-3))] * 3) + "]",
               f"accel_noise_rate_hz = {imu.rate_hz!r}",
               f"accel_bias_sigma_m_s2 = {imu.accel_bias_sigma_m_s2!r}",
+              f"attitude_walk_deg_sqrt_s = {SIM_ATTITUDE_WALK_DEG_SQRT_S!r}",
               ""]
     return "\n".join(lines)
 
