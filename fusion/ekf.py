@@ -228,7 +228,14 @@ class NoiseModel:
     grade_rate_tau_s: float = 5.0
     grade_walk_rad_sqrt_s: float = math.radians(0.05)
     accel_x_walk_m_s2_sqrt_s: float = 3.0                  # longitudinal jerk
-    pitch_walk_rad_sqrt_s: float = math.radians(0.05)      # attitude motion the gyro does not see
+    #: Attitude motion the gyros do not see (scale factor, misalignment, vibration, timing), a
+    #: random walk of roll, pitch and the heading relative to the road (``[fusion]
+    #: attitude_walk_deg_sqrt_s``). A real vehicle's: comma2k19's phone gyro integrated from its
+    #: INS attitude over 1 and 4 s drifts 0.024 / 0.039-0.045 deg/sqrt(s) in roll / pitch, its noise
+    #: included (``tools/fusion_realdata.py``, :func:`fusion.metrics.gyro_attitude_drift`). The
+    #: simulator's gyros leave out 0.014 at most beyond their noise, and its drives' configs say
+    #: 0.02 (``drivesim.drive.SIM_ATTITUDE_WALK_DEG_SQRT_S``).
+    pitch_walk_rad_sqrt_s: float = math.radians(0.05)
     #: Without a lane fit the road is assumed to turn with the vehicle; how far the vehicle may
     #: steer relative to the road meanwhile (lane changes), per sqrt(second).
     yaw_rel_walk_no_lanes_rad_sqrt_s: float = math.radians(1.0)

@@ -103,18 +103,23 @@ def consistency(fused: pd.DataFrame, truth: pd.DataFrame, cov: np.ndarray | None
 
 
 def gyro_attitude_drift(t_s: np.ndarray, gyro_rad_s: np.ndarray, truth: pd.DataFrame,
-                        window_s: float = 1.0) -> np.ndarray:
+                        window_s: float = 1.0, remove_mean: bool = False) -> np.ndarray:
     """What a gyro leaves out of the attitude: the vehicle-frame rates ``gyro_rad_s`` (N, 3; less
     their bias) integrated as the filter propagates (the rates averaged over each interval,
     exact rotation), over back-to-back windows of ``window_s``, each started from the truth's
     attitude (``roll_world_deg``, ``pitch_world_deg``, ``yaw_world_deg`` at ``t_s``); the RMS
     over the windows of the ZYX angles' error at their ends, per sqrt(window), deg/sqrt(s)
     (roll, pitch, yaw). Against the filter's process noise this is ``sqrt(gyro_noise^2 dt +
-    attitude_walk^2)``: the gyro's white noise integrated, and what the gyro does not see."""
+    attitude_walk^2)``: the gyro's white noise integrated, and what the gyro does not see.
+    ``remove_mean``: the windows' mean error taken out first (a constant gyro bias, when the
+    rates' is not known). A truth without a heading gives the roll and pitch (a rotation about
+    the vertical does not change them) and NaN for the yaw."""
     t = np.asarray(t_s, dtype=float)
     w = np.asarray(gyro_rad_s, dtype=float)
     tr = interp_truth(truth, t)
-    rpy = np.radians(np.stack([tr[f"{a}_world_deg"].to_numpy() for a in ("roll", "pitch", "yaw")], axis=1))
+    has_yaw = "yaw_world_deg" in tr
+    rpy = np.radians(np.stack([tr[f"{a}_world_deg"].to_numpy() if a != "yaw" or has_yaw else np.zeros(len(t))
+                               for a in ("roll", "pitch", "yaw")], axis=1))
     errors = []
     i = 0
     while True:
@@ -129,4 +134,10 @@ def gyro_attitude_drift(t_s: np.ndarray, gyro_rad_s: np.ndarray, truth: pd.DataF
         i = j
     if not errors:
         raise ValueError("gyro_attitude_drift: no window of the truth's and the gyro's span")
-    return np.degrees(np.sqrt(np.mean(np.square(errors), axis=0))) / math.sqrt(window_s)
+    e = np.asarray(errors)
+    if remove_mean:
+        e = e - e.mean(axis=0)
+    drift = np.degrees(np.sqrt(np.mean(np.square(e), axis=0))) / math.sqrt(window_s)
+    if not has_yaw:
+        drift[2] = math.nan
+    return drift

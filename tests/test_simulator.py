@@ -205,4 +205,9 @@ def test_drive_config_allows_for_what_the_simulated_gyros_leave_out():
     for window_s in (1.0, 4.0):
         drift = gyro_attitude_drift(t, w, truth, window_s)
         assert np.all(drift <= allowed), (window_s, drift, allowed)
+    # a truth without a heading (comma2k19's) gives the same roll and pitch: a rotation about
+    # the vertical does not change them
+    no_heading = gyro_attitude_drift(t, w, truth.drop(columns="yaw_world_deg"), 1.0)
+    np.testing.assert_allclose(no_heading[:2], gyro_attitude_drift(t, w, truth, 1.0)[:2], rtol=1e-9)
+    assert np.isnan(no_heading[2])
     assert np.max(gyro_attitude_drift(t, 1.01 * w, truth, 1.0)) > 2 * allowed

@@ -160,6 +160,29 @@ def residuals(name: str, imu: pd.DataFrame, truth: pd.DataFrame, window_s: float
         print(f"| {axis} | {r.mean():+.3f} | {np.sqrt(np.mean(r0**2)):.3f} | {avg:.3f} | {avg * math.sqrt(n):.2f} |")
 
 
+def gyro_drift(name: str, imu: pd.DataFrame, truth: pd.DataFrame) -> None:
+    """What the gyros leave out of the truth's roll and pitch: the rates integrated over windows
+    of 1 and 4 s from the truth (:func:`fusion.metrics.gyro_attitude_drift`, the windows' mean
+    error taken out: the rates' bias is not known), against the filter's default allowance for
+    it, ``sqrt(gyro_noise^2 dt + attitude_walk^2)`` per sqrt(s) (``[fusion]
+    attitude_walk_deg_sqrt_s``; the simulator's drives give 0.02, what their gyros leave out)."""
+    from fusion.ekf import NoiseModel
+    from fusion.metrics import gyro_attitude_drift
+
+    ok = imu[["gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s"]].notna().all(axis=1).to_numpy()
+    t = imu["t_s"].to_numpy()[ok]
+    w = imu[["gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s"]].to_numpy()[ok]
+    n = NoiseModel()
+    allowed = math.degrees(math.hypot(n.gyro_noise_rad_s * math.sqrt(float(np.median(np.diff(t)))), n.pitch_walk_rad_sqrt_s))
+    print(f"\n{name}: the gyros integrated from the truth's attitude, error per sqrt(window) less its mean,"
+          f" deg/sqrt(s); the filter's default allowance {allowed:.3f}")
+    print("| window | roll | pitch |")
+    print("|---|---|---|")
+    for window_s in (1.0, 4.0):
+        d = gyro_attitude_drift(t, w, truth, window_s, remove_mean=True)
+        print(f"| {window_s:g} s | {d[0]:.3f} | {d[1]:.3f} |")
+
+
 def main(argv=None) -> int:
     from imu.errors import ImuError
     from imu import read_oxts
@@ -173,10 +196,12 @@ def main(argv=None) -> int:
         kitti = read_oxts(args.kitti)
         table("kitti_oxts", *kitti, args.out)
         residuals("kitti_oxts", *kitti)
+        gyro_drift("kitti_oxts", *kitti)
         table("kitti_oxts_no_pitch_gyro", *kitti, args.out, has_pitch_rate=False)
         comma = read_comma(args.comma)
         table("comma2k19_phone_imu", *comma, args.out)
         residuals("comma2k19_phone_imu", *comma)
+        gyro_drift("comma2k19_phone_imu", *comma)
         # a phone's MEMS accelerometer: a zero-g offset of tens of mg, not a calibrated unit's 3 mg
         table("comma2k19_phone_imu_phone_prior", *comma, args.out, accel_bias_m_s2=0.2)
     except ImuError as exc:
