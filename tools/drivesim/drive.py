@@ -45,11 +45,11 @@ VIDEO_NAMES = {"mp4v": "video.mp4", "ffv1": "video.avi", "mjpg": "video.avi", "p
 #: The attitude motion the simulated gyros do not see, as the filter's allowance for it
 #: (``[fusion] attitude_walk_deg_sqrt_s``; the default, 0.05, is for a real vehicle's gyros):
 #: the simulated IMU's rates are the trajectory's exactly, plus bias and white noise, so what
-#: integrating them leaves out beyond that noise is the integration's discretisation of the
-#: rider's pitching. Measured with :func:`fusion.metrics.gyro_attitude_drift` (decoded rates less
-#: the true bias, windows of 1 and 4 s) on the bundled sample drive and the five benchmark
-#: drives: at most 0.005 deg/sqrt(s) in roll and yaw and 0.014 in pitch beyond the gyro noise's
-#: 0.005 (``tests/test_cli_simulate.py`` checks it on the sample drive).
+#: integrating them leaves out beyond that noise is the filter's 100 Hz integration of the
+#: simulated motion (at 1 kHz it vanishes). Measured with :func:`fusion.metrics.gyro_attitude_drift`
+#: (decoded rates less the true bias, windows of 1 and 4 s) on the bundled sample drive and the
+#: five benchmark drives: at most 0.005 deg/sqrt(s) in roll and yaw and 0.014 in pitch beyond the
+#: gyro noise's 0.005 (``tests/test_simulator.py`` checks it on the sample drive).
 SIM_ATTITUDE_WALK_DEG_SQRT_S = 0.02
 
 
