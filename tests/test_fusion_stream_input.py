@@ -32,7 +32,7 @@ def test_a_gap_in_the_imu_samples_restarts_the_filter(drive, smooth):
     across with the mean of the two gyro readings, the bank was 11.5 deg off 5 s later with a
     sigma of 0.4 deg (a review's measurement on a rendered drive). The filter now starts again
     from the sample after the gap, keeping the IMU biases, and says so: measured, roll at most
-    0.45 deg off in the 3 s after (forward; 0.19 smoothed, each side of the gap smoothed on its
+    0.43 deg off in the 3 s after (forward; 0.19 smoothed, each side of the gap smoothed on its
     own), and from then on the RMSE of the run without the gap (0.178 / 0.098 deg). Bars: the
     issue's 1 deg of lane loss for the first 3 s, within 0.02 deg of the gapless run after."""
     keep = ~((drive.imu["t_s"] > 30.0) & (drive.imu["t_s"] < 31.0)).to_numpy()
