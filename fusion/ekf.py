@@ -231,10 +231,13 @@ class NoiseModel:
     #: Attitude motion the gyros do not see (scale factor, misalignment, vibration, timing), a
     #: random walk of roll, pitch and the heading relative to the road (``[fusion]
     #: attitude_walk_deg_sqrt_s``). A real vehicle's: comma2k19's phone gyro integrated from its
-    #: INS attitude over 1 and 4 s drifts 0.024 / 0.039-0.045 deg/sqrt(s) in roll / pitch, its noise
-    #: included (``tools/fusion_realdata.py``, :func:`fusion.metrics.gyro_attitude_drift`). The
-    #: simulator's gyros leave out 0.014 at most beyond their noise, and its drives' configs say
-    #: 0.02 (``drivesim.drive.SIM_ATTITUDE_WALK_DEG_SQRT_S``).
+    #: INS attitude over 1 and 4 s drifts 0.025 / 0.036-0.046 deg/sqrt(s) in roll / pitch, its noise
+    #: included (``tools/fusion_realdata.py``, :func:`fusion.metrics.gyro_attitude_drift`); KITTI's
+    #: 10 Hz OXTS rates drift 0.090 in pitch over 1 s, over this default, but ten integration steps
+    #: through the braking's pitch say more about the coarse sampling than about the gyro. The
+    #: simulator's gyros leave out up to 0.015 in pitch (two integration steps where the simulated
+    #: roll rate steps), and its drives' configs say 0.02 (``drivesim.drive.SIM_ATTITUDE_WALK_DEG_SQRT_S``).
+    #: Without a pitch gyro the pitch walks with ``no_pitch_rate_walk_rad_sqrt_s`` instead.
     pitch_walk_rad_sqrt_s: float = math.radians(0.05)
     #: Without a lane fit the road is assumed to turn with the vehicle; how far the vehicle may
     #: steer relative to the road meanwhile (lane changes), per sqrt(second).

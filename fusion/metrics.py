@@ -108,36 +108,51 @@ def gyro_attitude_drift(t_s: np.ndarray, gyro_rad_s: np.ndarray, truth: pd.DataF
     their bias) integrated as the filter propagates (the rates averaged over each interval,
     exact rotation), over back-to-back windows of ``window_s``, each started from the truth's
     attitude (``roll_world_deg``, ``pitch_world_deg``, ``yaw_world_deg`` at ``t_s``); the RMS
-    over the windows of the ZYX angles' error at their ends, per sqrt(window), deg/sqrt(s)
-    (roll, pitch, yaw). Against the filter's process noise this is ``sqrt(gyro_noise^2 dt +
-    attitude_walk^2)``: the gyro's white noise integrated, and what the gyro does not see.
+    over the windows of the ZYX angles' error at their ends, each divided by the square root of
+    its window's length, deg/sqrt(s) (roll, pitch, yaw). Against the filter's process noise this
+    is ``sqrt(gyro_noise^2 dt + attitude_walk^2)``: the gyro's white noise integrated, and what
+    the gyro does not see (without a pitch gyro the filter's pitch walks with
+    ``no_pitch_rate_walk_rad_sqrt_s`` instead, which this does not measure).
     ``remove_mean``: the windows' mean error taken out first (a constant gyro bias, when the
-    rates' is not known). A truth without a heading gives the roll and pitch (a rotation about
-    the vertical does not change them) and NaN for the yaw."""
+    rates' is not known), the RMS then over ``n - 1``. Windows spanning a gap in ``t_s`` (longer
+    than 1.5 ``window_s``) or a non-finite sample are left out; fewer than 3 windows left raise
+    ``ValueError``, as do ``t_s`` not strictly increasing and ``window_s`` not positive. A truth
+    without a heading gives the roll and pitch (a rotation about the vertical does not change
+    them) and NaN for the yaw."""
     t = np.asarray(t_s, dtype=float)
     w = np.asarray(gyro_rad_s, dtype=float)
+    if t.ndim != 1 or len(t) < 2 or w.shape != (len(t), 3):
+        raise ValueError(f"gyro_attitude_drift: t_s must be (N,) and gyro_rad_s (N, 3), got {t.shape} and {w.shape}")
+    dt = np.diff(t)
+    if not (np.all(np.isfinite(t)) and np.all(dt > 0)):
+        raise ValueError("gyro_attitude_drift: t_s must be finite and strictly increasing")
+    if not (math.isfinite(window_s) and window_s > 0):
+        raise ValueError(f"gyro_attitude_drift: window_s must be a positive number of seconds, got {window_s}")
     tr = interp_truth(truth, t)
     has_yaw = "yaw_world_deg" in tr
     rpy = np.radians(np.stack([tr[f"{a}_world_deg"].to_numpy() if a != "yaw" or has_yaw else np.zeros(len(t))
                                for a in ("roll", "pitch", "yaw")], axis=1))
+    tol = 0.5 * float(np.median(dt))  # a window ends on the sample nearest its nominal end
     errors = []
     i = 0
     while True:
-        j = int(np.searchsorted(t, t[i] + window_s - 1e-9))
+        j = max(i + 1, int(np.searchsorted(t, t[i] + window_s - tol)))
         if j >= len(t):
             break
-        if np.all(np.isfinite(rpy[[i, j]])) and np.all(np.isfinite(w[i:j + 1])):
+        span = t[j] - t[i]
+        if span <= 1.5 * window_s and np.all(np.isfinite(rpy[[i, j]])) and np.all(np.isfinite(w[i:j + 1])):
             R = R_from_rpy_scalar(*rpy[i])
             for k in range(i, j):
                 R = R @ so3_exp_scalar(*(0.5 * (w[k] + w[k + 1]) * (t[k + 1] - t[k])))
-            errors.append(wrap_angle(np.array(rpy_from_R_scalar(R)) - rpy[j]))
+            errors.append(wrap_angle(np.array(rpy_from_R_scalar(R)) - rpy[j]) / math.sqrt(span))
         i = j
-    if not errors:
-        raise ValueError("gyro_attitude_drift: no window of the truth's and the gyro's span")
+    if len(errors) < 3:
+        raise ValueError(f"gyro_attitude_drift: {len(errors)} window(s) of {window_s:g} s where the truth and "
+                         "the gyro are both finite; at least 3 are needed")
     e = np.asarray(errors)
     if remove_mean:
         e = e - e.mean(axis=0)
-    drift = np.degrees(np.sqrt(np.mean(np.square(e), axis=0))) / math.sqrt(window_s)
+    drift = np.degrees(np.sqrt(np.sum(np.square(e), axis=0) / (len(e) - int(remove_mean))))
     if not has_yaw:
         drift[2] = math.nan
     return drift

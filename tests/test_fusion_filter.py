@@ -202,14 +202,19 @@ def test_graded_curve_as_the_cross_sections_see_it():
     cannot separate it from the bank, and the bank's mean error is whatever the runoff left in
     that bias (-0.061 deg, within its sigma of 0.16, with the simulator's attitude allowance;
     -0.018 with the default's). Measured: on the steady curve (from 17 s) the fused bank is
-    0.013 deg off on average and the roll 0.022 deg RMS; with the grade left out of the model
-    (measured at ``7fa5496``) 0.081 and 0.054."""
-    calibrated = FusionOptions(noise=NoiseModel(**{**SIM_NOISE, "init_accel_bias_m_s2": (0.05, 0.005, 0.05)}))
-    f, truth = _fused_with_rolls_ahead("hill_banked_curve_5deg.toml", options=calibrated)
-    steady = f["t_s"].to_numpy() >= 17.0
-    bank_error = f["bank_deg"].to_numpy() - np.interp(f["t_s"], truth["t_s"], truth["bank_deg"])
-    assert abs(bank_error[steady].mean()) < 0.03, bank_error[steady].mean()
-    assert rmse_deg(f, truth, "roll_deg") < 0.035
+    0.013 deg off on average (sigma 0.076) and the roll 0.022 deg RMS; with the datasheet's
+    prior -0.061 (sigma 0.157), barred at 0.1 and within the sigma. With the grade left out of
+    the model (measured at ``7fa5496``, before the simulator's attitude allowance, so not like
+    for like) the calibrated figures were 0.081 and 0.054."""
+    for prior, bar in ((0.005, 0.03), (0.05, 0.1)):
+        noise = NoiseModel(**{**SIM_NOISE, "init_accel_bias_m_s2": (0.05, prior, 0.05)})
+        f, truth = _fused_with_rolls_ahead("hill_banked_curve_5deg.toml", options=FusionOptions(noise=noise))
+        steady = f["t_s"].to_numpy() >= 17.0
+        bank_error = f["bank_deg"].to_numpy() - np.interp(f["t_s"], truth["t_s"], truth["bank_deg"])
+        mean_error = abs(bank_error[steady].mean())
+        assert mean_error < bar, (prior, bank_error[steady].mean())
+        assert mean_error < f["bank_sigma_deg"].to_numpy()[steady].mean(), prior
+        assert rmse_deg(f, truth, "roll_deg") < 0.035, prior
 
 
 def test_fused_attitude_beats_vision_alone(drive, forward):

@@ -178,8 +178,10 @@ def test_drive_config_allows_for_what_the_simulated_gyros_leave_out():
     its gyros leave out: on the bundled sample drive, the decoded rates less the true bias,
     integrated the filter's way over 1 s and 4 s windows from the truth, drift by no more than
     the filter's process noise for them, ``sqrt(gyro_noise^2 dt + walk^2)`` per sqrt(s) (measured
-    0.002-0.006 deg/sqrt(s) in roll and yaw, 0.012-0.015 in pitch: the 100 Hz integration's, against
-    0.021). The check has power: a 1 % scale-factor error, which real gyros have and the
+    0.002-0.006 deg/sqrt(s) in roll and yaw, 0.012-0.015 in pitch, against 0.021: the pitch's excess
+    is the 100 Hz integration across the two joints where the simulated roll rate steps, 0.03 and
+    0.02 deg in the windows holding them, and with three 4 s windows the figure is the RMS of
+    those two steps). The check has power: a 1 % scale-factor error, which real gyros have and the
     simulator's do not, drifts 0.055 deg/sqrt(s) in yaw through the curve (0.025 in roll), 2.7
     times the allowance."""
     import pandas as pd
