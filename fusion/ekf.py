@@ -238,7 +238,7 @@ class NoiseModel:
     #: simulator's gyros leave out up to 0.015 in pitch (two integration steps where the simulated
     #: roll rate steps), and its drives' configs say 0.02 (``drivesim.drive.SIM_ATTITUDE_WALK_DEG_SQRT_S``).
     #: Without a pitch gyro the pitch walks with ``no_pitch_rate_walk_rad_sqrt_s`` instead.
-    pitch_walk_rad_sqrt_s: float = math.radians(0.05)
+    attitude_walk_rad_sqrt_s: float = math.radians(0.05)
     #: Without a lane fit the road is assumed to turn with the vehicle; how far the vehicle may
     #: steer relative to the road meanwhile (lane changes), per sqrt(second).
     yaw_rel_walk_no_lanes_rad_sqrt_s: float = math.radians(1.0)
@@ -761,8 +761,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
         q[S.ACCEL_X] = n.accel_x_walk_m_s2_sqrt_s**2
         q[S.ACCEL_BIAS] = n.accel_bias_walk_m_s2_sqrt_s**2
         q[S.CURVATURE] = n.curvature_walk_1_m_sqrt_s**2
-        q[S.ROLL_W] = q[S.YAW_REL] = n.pitch_walk_rad_sqrt_s**2
-        q[S.PITCH_W] = (n.pitch_walk_rad_sqrt_s if has_pitch_rate else n.no_pitch_rate_walk_rad_sqrt_s) ** 2
+        q[S.ROLL_W] = q[S.YAW_REL] = n.attitude_walk_rad_sqrt_s**2
+        q[S.PITCH_W] = (n.attitude_walk_rad_sqrt_s if has_pitch_rate else n.no_pitch_rate_walk_rad_sqrt_s) ** 2
         if not has_pitch_rate:   # the pitch rate in the gyro's bias slot: Gauss-Markov, not a walk
             q[S.GYRO_BIAS_Y] = 2.0 * n.no_pitch_rate_sigma_rad_s**2 / n.no_pitch_rate_tau_s
         self._q_const = q

@@ -50,7 +50,7 @@ _NOISE_KEYS = {
     "gyro_bias_walk_deg_s_sqrt_s": ("gyro_bias_walk_rad_s_sqrt_s", math.radians, 0.0, 10.0),
     "accel_bias_walk_m_s2_sqrt_s": ("accel_bias_walk_m_s2_sqrt_s", float, 0.0, 10.0),
     "speed_noise_m_s": ("speed_meas_m_s", float, 0.0, 100.0),
-    "attitude_walk_deg_sqrt_s": ("pitch_walk_rad_sqrt_s", math.radians, 0.0, 100.0),
+    "attitude_walk_deg_sqrt_s": ("attitude_walk_rad_sqrt_s", math.radians, 0.0, 100.0),
     "no_pitch_rate_sigma_deg_s": ("no_pitch_rate_sigma_rad_s", math.radians, 1e-3, 100.0),
     "no_pitch_rate_tau_s": ("no_pitch_rate_tau_s", float, 0.01, 10.0),
     "bank_rate_deg_s": ("bank_rate_rad_s", math.radians, 0.0, 100.0),

@@ -35,7 +35,7 @@ SIM_ACCEL_NOISE_M_S2 = 0.03
 #: allowance for its gyros, which see every rotation (``SIM_ATTITUDE_WALK_DEG_SQRT_S``; the
 #: default allows for a real vehicle's).
 SIM_NOISE = dict(init_accel_bias_m_s2=0.05, accel_meas_m_s2=(SIM_ACCEL_NOISE_M_S2,) * 3,
-                 pitch_walk_rad_sqrt_s=math.radians(SIM_ATTITUDE_WALK_DEG_SQRT_S))
+                 attitude_walk_rad_sqrt_s=math.radians(SIM_ATTITUDE_WALK_DEG_SQRT_S))
 
 
 @dataclasses.dataclass

@@ -174,7 +174,7 @@ def gyro_drift(name: str, imu: pd.DataFrame, truth: pd.DataFrame) -> None:
     w = imu[["gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s"]].to_numpy()[ok]
     n = NoiseModel()
     dt = float(np.median(np.diff(t)))
-    allowed = math.degrees(math.hypot(n.gyro_noise_rad_s * math.sqrt(dt), n.pitch_walk_rad_sqrt_s))
+    allowed = math.degrees(math.hypot(n.gyro_noise_rad_s * math.sqrt(dt), n.attitude_walk_rad_sqrt_s))
     print(f"\n{name}: the gyros integrated from the truth's attitude, error per sqrt(window) less its mean,"
           f" deg/sqrt(s); the filter's default allowance {allowed:.3f}")
     print("| window | windows | roll | pitch |")
