@@ -24,7 +24,6 @@ before reusing them.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +32,7 @@ import pandas as pd
 from .config import Table, read_toml
 from .ekf import NoiseModel, S
 from .errors import ConfigError
+from .files import write_bytes_atomically
 
 __all__ = ["CALIBRATION_KEYS", "calibration_table", "calibration_from_state", "pitch_gyro_prior_deg_s",
            "write_calibration", "read_calibration"]
@@ -93,9 +93,7 @@ def write_calibration(table: dict[str, list[float]], path: str | Path, source: s
         lines.append(f"# from: {source}")
     lines.append("[fusion]")
     lines += [f"{k} = [{', '.join(f'{x:.6g}' for x in v)}]" for k, v in table.items()]
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    write_bytes_atomically(path, ("\n".join(lines) + "\n").encode())
 
 
 def read_calibration(path: str | Path) -> dict:

@@ -9,7 +9,6 @@ import html
 import io
 import json
 import math
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .calibration import calibration_table
+from .files import write_bytes_atomically
 from .metrics import ANGLES, consistency, interp_truth, rmse_table, wrap_deg
 
 __all__ = ["ReportInputs", "write_report", "summarise"]
@@ -352,7 +352,7 @@ def write_report(r: ReportInputs, out_dir: str | Path, plots: bool = True) -> di
     summary = summarise(r)
     if plots:
         _write_pages(r, summary, out_dir)
-    _atomic_write(out_dir / "summary.json",
+    write_bytes_atomically(out_dir / "summary.json",
                   json.dumps(_finite_or_null(summary), indent=2, default=_json_default, allow_nan=False).encode())
     return summary
 
@@ -361,7 +361,7 @@ def _write_pages(r: ReportInputs, summary: dict, out_dir: Path) -> None:
     """The PNG plots and the self-contained ``report.html`` (the plots inlined)."""
     figs = _plots(r) if len(r.fused) else {}
     for name, png in figs.items():
-        _atomic_write(out_dir / name, png)
+        write_bytes_atomically(out_dir / name, png)
     body = [f"<h1>{html.escape(r.title)}</h1>", _table_html(summary)]
     for name, png in figs.items():
         body.append(f'<h2>{html.escape(name[:-4])}</h2><img src="data:image/png;base64,{base64.b64encode(png).decode()}"/>')
@@ -369,7 +369,7 @@ def _write_pages(r: ReportInputs, summary: dict, out_dir: Path) -> None:
             "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
             "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>"
             + "\n".join(body) + "</body></html>")
-    _atomic_write(out_dir / "report.html", page.encode())
+    write_bytes_atomically(out_dir / "report.html", page.encode())
 
 
 def _finite_or_null(o):
@@ -391,7 +391,3 @@ def _json_default(o):
     return str(o)
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)

@@ -42,6 +42,7 @@ from imu.errors import ImuError
 from vision.errors import VisionError
 
 from ..errors import FusionError
+from ..files import write_atomically
 
 __all__ = ["main", "USER_ERRORS"]
 
@@ -220,20 +221,14 @@ def write_table(df, path: Path) -> None:
     """One output table, CSV or Parquet by the suffix, written to ``PATH.partial`` and renamed.
     CSV numbers keep 9 significant digits (a fixed 6 decimals kept 2 of a curvature sigma of
     9e-5 1/m, a review found), the times ``t_s`` their microseconds."""
-    tmp = path.with_name(path.name + ".partial")
-    try:
-        if path.suffix.lower() == ".parquet":
-            df.to_parquet(tmp, index=False)
-        else:
-            if "t_s" in df.columns:
-                import numpy as np
+    if path.suffix.lower() == ".parquet":
+        write_atomically(path, lambda tmp: df.to_parquet(tmp, index=False))  # keeps df.attrs
+        return
+    if "t_s" in df.columns:
+        import numpy as np
 
-                df = df.assign(t_s=np.char.mod("%.6f", df["t_s"].to_numpy(dtype=float)))
-            df.to_csv(tmp, index=False, float_format="%.9g")
-        os.replace(tmp, path)
-    except BaseException:       # a full disk, an interrupt: no half table left under any name
-        tmp.unlink(missing_ok=True)
-        raise
+        df = df.assign(t_s=np.char.mod("%.6f", df["t_s"].to_numpy(dtype=float)))
+    write_atomically(path, lambda tmp: df.to_csv(tmp, index=False, float_format="%.9g"))
 
 
 def refuse_inputs_as_outputs(outputs, inputs) -> None:

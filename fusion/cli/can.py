@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 import time
 from pathlib import Path
@@ -20,7 +19,7 @@ from imu.samples import never_seen
 
 from ..config import Table, parse_can, parse_imu, read_toml
 from ..errors import ConfigError, InputError
-from . import refuse_inputs_as_outputs, settle_heap
+from . import refuse_inputs_as_outputs, settle_heap, write_table
 
 OUT_SUFFIXES = (".parquet", ".csv")
 
@@ -81,20 +80,8 @@ def run(args: argparse.Namespace) -> int:
               f"and is marked complete=false", file=sys.stderr)
     for col in never_seen(table):
         print(f"warning: {args.log}: {col} never seen (all NaN in {out.name})", file=sys.stderr)
-    _write_atomic(table, out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_table(table, out)
     print(f"wrote {out} ({len(table)} rows)")
     return 0
 
-
-def _write_atomic(table, out: Path) -> None:
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.partial-{os.getpid()}")
-    try:
-        if out.suffix.lower() == ".parquet":
-            table.to_parquet(tmp, index=False)  # pandas keeps table.attrs (summary, unavailable) in it
-        else:
-            table.to_csv(tmp, index=False)
-        os.replace(tmp, out)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
