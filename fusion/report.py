@@ -353,7 +353,7 @@ def write_report(r: ReportInputs, out_dir: str | Path, plots: bool = True) -> di
     if plots:
         _write_pages(r, summary, out_dir)
     write_bytes_atomically(out_dir / "summary.json",
-                  json.dumps(_finite_or_null(summary), indent=2, default=_json_default, allow_nan=False).encode())
+                           json.dumps(_finite_or_null(summary), indent=2, default=_json_default, allow_nan=False).encode())
     return summary
 
 
