@@ -156,6 +156,22 @@ def run_memory(drive: Path, out: Path, *extra: str) -> tuple[float, float]:
     return total, one
 
 
+#: How long the lane-loss runs go without vision, s (issue 5).
+LANE_LOSS_S = 5.0
+
+
+def _while_lost(t_s, t_from_s: float):
+    """Where ``t_s`` falls in the lane loss that starts at ``t_from_s``."""
+    return (t_s >= t_from_s) & (t_s < t_from_s + LANE_LOSS_S)
+
+
+def _lanes_lost(vision: pd.DataFrame, t_from_s: float) -> pd.DataFrame:
+    """The vision with its frames of the lane loss from ``t_from_s`` marked invalid."""
+    v = vision.copy()
+    v.loc[_while_lost(v["t_s"], t_from_s), "valid"] = 0
+    return v
+
+
 def lane_loss(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[float, float, float]:
     """Worst roll error with vision removed for 5 s from ``t_loss_s`` after the start, and the
     time after the lanes return until the error stays within 2x the drive's own roll RMSE, and
@@ -167,17 +183,14 @@ def lane_loss(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[float, float
 
     cfg, opts, imu, vision, truth = filter_inputs(drive, run_dir)
     t0 = float(vision["t_s"].iloc[0])
-    lost = (vision["t_s"] >= t0 + t_loss_s) & (vision["t_s"] < t0 + t_loss_s + 5.0)
     base = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts).fused
-    v = vision.copy()
-    v.loc[lost, "valid"] = 0
-    f = fuse(imu, v, lever_arm_m=cfg.imu.position_m, options=opts).fused
+    f = fuse(imu, _lanes_lost(vision, t0 + t_loss_s), lever_arm_m=cfg.imu.position_m, options=opts).fused
     t = f["t_s"].to_numpy()
     err = np.abs(f["roll_deg"].to_numpy() - interp_truth(truth, t)["roll_deg"].to_numpy())
     err0 = np.abs(base["roll_deg"].to_numpy() - interp_truth(truth, t)["roll_deg"].to_numpy())
     band = 2.0 * math.sqrt(np.nanmean(err0[t > t0 + 2.0] ** 2))
-    during = err[(t >= t0 + t_loss_s) & (t < t0 + t_loss_s + 5.0)]
-    back = t0 + t_loss_s + 5.0
+    during = err[_while_lost(t, t0 + t_loss_s)]
+    back = t0 + t_loss_s + LANE_LOSS_S
     after = (t >= back) & (t < back + 10.0)   # the 10 s after the lanes return
 
     def recovery(limit: float) -> float:
@@ -200,12 +213,10 @@ def without_pitch_gyro(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[dic
     t0 = float(vision["t_s"].iloc[0])
     f = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts, has_pitch_rate=False).fused
     acc = rmse_table(f, truth, t0 + 2.0, angles=("roll", "pitch", "yaw", "bank"))
-    v = vision.copy()
-    v.loc[(v["t_s"] >= t0 + t_loss_s) & (v["t_s"] < t0 + t_loss_s + 5.0), "valid"] = 0
-    f = fuse(imu, v, lever_arm_m=cfg.imu.position_m, options=opts, has_pitch_rate=False).fused
+    f = fuse(imu, _lanes_lost(vision, t0 + t_loss_s), lever_arm_m=cfg.imu.position_m, options=opts,
+             has_pitch_rate=False).fused
     t = f["t_s"].to_numpy()
-    during = (t >= t0 + t_loss_s) & (t < t0 + t_loss_s + 5.0)
-    err = np.abs(f["roll_deg"].to_numpy() - interp_truth(truth, t)["roll_deg"].to_numpy())[during]
+    err = np.abs(f["roll_deg"].to_numpy() - interp_truth(truth, t)["roll_deg"].to_numpy())[_while_lost(t, t0 + t_loss_s)]
     return acc, float(np.nanmax(err))
 
 
