@@ -103,7 +103,7 @@ def consistency(fused: pd.DataFrame, truth: pd.DataFrame, cov: np.ndarray | None
 
 
 def gyro_attitude_drift(t_s: np.ndarray, gyro_rad_s: np.ndarray, truth: pd.DataFrame,
-                        window_s: float = 1.0, remove_mean: bool = False) -> np.ndarray:
+                        window_s: float = 1.0, remove_mean: bool = False, return_windows: bool = False):
     """What a gyro leaves out of the attitude: the vehicle-frame rates ``gyro_rad_s`` (N, 3; less
     their bias) integrated as the filter propagates (the rates averaged over each interval,
     exact rotation), over back-to-back windows of ``window_s``, each started from the truth's
@@ -118,7 +118,7 @@ def gyro_attitude_drift(t_s: np.ndarray, gyro_rad_s: np.ndarray, truth: pd.DataF
     than 1.5 ``window_s``) or a non-finite sample are left out; fewer than 3 windows left raise
     ``ValueError``, as do ``t_s`` not strictly increasing and ``window_s`` not positive. A truth
     without a heading gives the roll and pitch (a rotation about the vertical does not change
-    them) and NaN for the yaw."""
+    them) and NaN for the yaw. ``return_windows``: ``(drift, number of windows used)``."""
     t = np.asarray(t_s, dtype=float)
     w = np.asarray(gyro_rad_s, dtype=float)
     if t.ndim != 1 or len(t) < 2 or w.shape != (len(t), 3):
@@ -155,4 +155,4 @@ def gyro_attitude_drift(t_s: np.ndarray, gyro_rad_s: np.ndarray, truth: pd.DataF
     drift = np.degrees(np.sqrt(np.sum(np.square(e), axis=0) / (len(e) - int(remove_mean))))
     if not has_yaw:
         drift[2] = math.nan
-    return drift
+    return (drift, len(e)) if return_windows else drift

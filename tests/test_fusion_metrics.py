@@ -88,14 +88,17 @@ def test_white_noise_integrates_to_its_density():
 
 def test_windows_across_a_gap_are_left_out_and_bad_input_is_refused():
     """A 3 s hole in the log (a dropped CAN recording) with a 1 deg/s roll-rate error inside
-    would count 3 deg; the window spanning it is left out instead. Unsorted times, a zero
+    would count 3 deg; the window spanning it is left out instead (15 of the 20 s's 1 s windows
+    are used against 19 without the hole: the one across it and the three inside it go). Unsorted times, a zero
     window or too few windows raise ValueError instead of looping or dividing by zero."""
     t = np.arange(0.0, 20.0, 0.001)
     truth, w = _weave(t)
     keep = (t < 8.0) | (t >= 11.0)
     tg, wg = t[keep], w[keep].copy()
     wg[np.searchsorted(tg, 11.0) - 1] += [math.radians(1.0) / 0.001 * 3.0, 0.0, 0.0]
-    assert np.all(gyro_attitude_drift(tg, wg, truth, 1.0) < 1e-4)
+    drift, windows = gyro_attitude_drift(tg, wg, truth, 1.0, return_windows=True)
+    assert np.all(drift < 1e-4) and windows == 15
+    assert gyro_attitude_drift(t, w, truth, 1.0, return_windows=True)[1] == 19
     with pytest.raises(ValueError, match="strictly increasing"):
         gyro_attitude_drift(t[::-1], w[::-1], truth, 1.0)
     with pytest.raises(ValueError, match="positive"):

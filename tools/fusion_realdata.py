@@ -173,18 +173,17 @@ def gyro_drift(name: str, imu: pd.DataFrame, truth: pd.DataFrame) -> None:
     t = imu["t_s"].to_numpy()[ok]
     w = imu[["gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s"]].to_numpy()[ok]
     n = NoiseModel()
-    dt = float(np.median(np.diff(t)))
-    allowed = math.degrees(math.hypot(n.gyro_noise_rad_s * math.sqrt(dt), n.attitude_walk_rad_sqrt_s))
+    allowed = math.degrees(math.hypot(n.gyro_noise_rad_s * math.sqrt(float(np.median(np.diff(t)))),
+                                      n.attitude_walk_rad_sqrt_s))
     print(f"\n{name}: the gyros integrated from the truth's attitude, error per sqrt(window) less its mean,"
           f" deg/sqrt(s); the filter's default allowance {allowed:.3f}")
     print("| window | windows | roll | pitch |")
     print("|---|---|---|---|")
     for window_s in (1.0, 4.0):
-        count = int((t[-1] - t[0] + 0.5 * dt) // window_s)
         try:
-            d = gyro_attitude_drift(t, w, truth, window_s, remove_mean=True)
+            d, count = gyro_attitude_drift(t, w, truth, window_s, remove_mean=True, return_windows=True)
         except ValueError:  # a recording too short for three windows
-            print(f"| {window_s:g} s | {count} | - | - |")
+            print(f"| {window_s:g} s | < 3 | - | - |")
             continue
         print(f"| {window_s:g} s | {count} | {d[0]:.3f} | {d[1]:.3f} |")
 
