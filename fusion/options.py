@@ -62,7 +62,6 @@ _NOISE_KEYS = {
     "grade_rate_tau_s": ("grade_rate_tau_s", float, 0.01, 1000.0),
     "longitudinal_jerk_m_s3": ("accel_x_walk_m_s2_sqrt_s", float, 0.0, 1000.0),
     "vision_sigma_scale": ("vision_sigma_scale", float, 0.0, 1000.0),
-    "vision_sigma_floor_deg": ("vision_sigma_floor_rad", math.radians, 0.0, 90.0),
     "vision_road_model_error": ("vision_road_model_error", float, 0.0, 100.0),
     "gate_probability": ("gate_probability", float, 0.5, 0.999999),
     "accel_noise_rate_hz": ("accel_meas_rate_hz", float, 0.1, 10000.0),
@@ -78,8 +77,9 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
         if t.has(key):
             changes[name] = conv(t.get(key, "float", min=lo, max=hi))
     for key, name, conv, hi in (("accel_bias_sigma_m_s2", "init_accel_bias_m_s2", float, 10.0),
-                                ("gyro_bias_sigma_deg_s", "init_gyro_bias_rad_s", math.radians, 100.0)):
-        if t.has(key):   # one value, or one per axis
+                                ("gyro_bias_sigma_deg_s", "init_gyro_bias_rad_s", math.radians, 100.0),
+                                ("vision_sigma_floor_deg", "vision_sigma_floor_rad", math.radians, 90.0)):
+        if t.has(key):   # one value, or one per axis (angle: roll, pitch, yaw)
             if isinstance(t.data[key], list):
                 changes[name] = tuple(conv(v) for v in t.get(key, "floats", length=3, min=0.0, max=hi))
             else:

@@ -146,3 +146,17 @@ def test_a_run_without_pitch_gyro_hands_on_its_prior_for_that_bias(tmp_path):
         calibration_table(run.fused)          # without the prior: no finite y bias, said so
     with pytest.raises(ConfigError, match="no_pitch_rate_sigma_deg_s"):
         fusion_options_from_table({"no_pitch_rate_sigma_deg_s": 0.0})
+
+
+def test_the_vision_floor_per_angle():
+    """``vision_sigma_floor_deg`` takes one value or one per angle (roll, pitch, yaw); the filter
+    floors each angle's sigma at its own (a 0.01 deg sigma becomes 0.1 / 0.04 / 0.05 deg)."""
+    import math
+
+    opts, _ = fusion_options_from_table({"vision_sigma_floor_deg": [0.1, 0.04, 0.05]}, "c.toml")
+    got = [math.degrees(opts.noise.vision_sigma_rad(math.radians(0.01), 0.0, i)) for i in range(3)]
+    np.testing.assert_allclose(got, [0.1, 0.04, 0.05], rtol=1e-12)
+    opts, _ = fusion_options_from_table({"vision_sigma_floor_deg": 0.2}, "c.toml")
+    assert math.degrees(opts.noise.vision_sigma_rad(math.radians(0.01), 0.0, 2)) == pytest.approx(0.2)
+    with pytest.raises(ConfigError, match="vision_sigma_floor_deg"):
+        fusion_options_from_table({"vision_sigma_floor_deg": [0.1, 0.04]}, "c.toml")

@@ -364,7 +364,7 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
             effect = effect + turn_roll
         e = v[f"{angle}_deg"].to_numpy() - tr[f"{angle}_deg"].to_numpy() - np.degrees(effect)
         sig = v[f"{angle}_sigma_deg"].to_numpy()
-        used = np.degrees(noise.vision_sigma_rad(np.radians(sig), effect))
+        used = np.degrees(noise.vision_sigma_rad(np.radians(sig), effect, ("roll", "pitch", "yaw").index(angle)))
         ok = np.isfinite(e) & np.isfinite(sig)      # the last frames have no truth 10 ms later
         out[angle] = _steady_and_runoffs(e, sig, used, ok, steady)
     # The lane fit's other outputs the filter reads: the curvature (its own sigma, floored as the

@@ -124,7 +124,7 @@ class LaneModel:
         out.prior_gains = self.prior_gains + ((i, g),)
         return out
 
-    def linear_response(self, dy: np.ndarray) -> np.ndarray:
+    def linear_response(self, dy: np.ndarray, priors: bool = True) -> np.ndarray:
         """Change of the parameters ``[a, b, c, dzeta]`` when the fit's points (``linear[0:2]``,
         ``x`` and ``y`` in the fit's order) move laterally by ``dy``: ``Ai A^T W dy`` of the
         second pass, then each prior on ``dzeta`` applied since (a Kalman update is linear in
@@ -138,7 +138,7 @@ class LaneModel:
                         np.ascontiguousarray(dy, np.float64))
         dp = Ai @ r
         dp[K:K + J] /= _XS                  # slopes per t = x / 10 -> per metre
-        for i, g in self.prior_gains:
+        for i, g in self.prior_gains if priors else ():
             dp = dp - g * dp[i]
         return dp
 

@@ -32,6 +32,10 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 TWIST_RESPONSE_COLUMNS = ("curvature_per_twist_here_1_rad", "curvature_per_twist_ahead_1_rad", "pitch_per_twist_here_m",
                           "pitch_per_twist_ahead_m", "yaw_per_twist_here_m", "yaw_per_twist_ahead_m")
 
+#: ``vision.csv``'s columns of the road's vertical curvature in view and the pitch error per 1/m
+#: of it beyond the vehicle's (:class:`vision.estimator.VisionEstimate`), as the filter takes them.
+SAG_COLUMNS = ("vertical_curvature_1_m", "pitch_per_vertical_curvature_m")
+
 #: Columns of ``vision.csv`` (INTERFACE.md: the first six, then quality columns).
 VISION_COLUMNS = (
     "t_s", "frame", "roll_deg", "pitch_deg", "yaw_deg", "valid",
@@ -39,6 +43,7 @@ VISION_COLUMNS = (
     "curvature_1_m", "curvature_sigma_1_m", "roll_lookahead_m",
     "pitch_per_twist_m", "yaw_per_twist_m", "road_twist_deg_per_m", "road_twist_sigma_deg_per_m",
     *TWIST_RESPONSE_COLUMNS, "road_twist_bank_change_deg",
+    "vertical_curvature_1_m", "vertical_curvature_sigma_1_m", "pitch_per_vertical_curvature_m",
     "lateral_offset_m", "line_spacing_m", "n_lines", "roll_equation", "vp_x_px", "vp_y_px", "edge_rms_px", "iterations", "warps", "estimator_ms", "reason",
 )
 
@@ -169,6 +174,7 @@ ESTIMATE_COLUMNS = (
     "roll_deg", "pitch_deg", "yaw_deg", "roll_sigma_deg", "pitch_sigma_deg", "yaw_sigma_deg",
     "curvature_1_m", "curvature_sigma_1_m", "roll_lookahead_m", "pitch_per_twist_m", "yaw_per_twist_m",
     "road_twist_deg_per_m", "road_twist_sigma_deg_per_m", *TWIST_RESPONSE_COLUMNS, "road_twist_bank_change_deg",
+    "vertical_curvature_1_m", "vertical_curvature_sigma_1_m", "pitch_per_vertical_curvature_m",
     "lateral_offset_m", "line_spacing_m",
 )
 
@@ -192,6 +198,9 @@ def vision_row(t_s: float, frame: int, est: VisionEstimate, ms: float = math.nan
         "road_twist_deg_per_m": deg(est.road_twist_rad_m), "road_twist_sigma_deg_per_m": deg(est.road_twist_sigma_rad_m),
         **dict(zip(TWIST_RESPONSE_COLUMNS, est.twist_response)),
         "road_twist_bank_change_deg": deg(est.road_twist_used),
+        "vertical_curvature_1_m": est.vertical_curvature_1_m,
+        "vertical_curvature_sigma_1_m": est.vertical_curvature_sigma_1_m,
+        "pitch_per_vertical_curvature_m": est.pitch_per_vertical_curvature_m,
         "lateral_offset_m": est.lateral_offset_m, "line_spacing_m": est.line_spacing_m,
         "n_lines": est.n_lines, "roll_equation": est.roll_equation,
         "vp_x_px": est.vp_px[0], "vp_y_px": est.vp_px[1], "edge_rms_px": est.edge_rms_px,
