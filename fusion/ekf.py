@@ -354,7 +354,7 @@ class NoiseModel:
     def twist_sigma_rad_m(self, twist_rad_m, sigma_rad_m):
         """The vision's road-twist 1-sigma as the filter uses it (rad/m; scalars or arrays): its
         own, floored at ``twist_sigma_floor_rad_m + twist_sigma_floor_rel |twist|``."""
-        return _float_if_scalar(_twist_sigma_v(twist_rad_m, sigma_rad_m, *self._vision_sigma_params()[6:]))
+        return _float_if_scalar(_twist_sigma_v(twist_rad_m, sigma_rad_m, *self._vision_sigma_params()[6:8]))
 
     def curvature_sigma_1_m(self, curvature_1_m, sigma_1_m):
         """The lane-fit curvature's 1-sigma as the filter uses it (1/m; scalars or arrays): the

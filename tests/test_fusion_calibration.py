@@ -160,3 +160,8 @@ def test_the_vision_floor_per_angle():
     assert math.degrees(opts.noise.vision_sigma_rad(math.radians(0.01), 0.0, 2)) == pytest.approx(0.2)
     with pytest.raises(ConfigError, match="vision_sigma_floor_deg"):
         fusion_options_from_table({"vision_sigma_floor_deg": [0.1, 0.04]}, "c.toml")
+    # the other sigmas of the same parameter vector keep theirs (the twist's floor 0.004 deg/m
+    # plus a quarter of the twist; the curvature's 3e-4 1/m plus a fifth)
+    n = opts.noise
+    assert math.degrees(n.twist_sigma_rad_m(math.radians(0.04), 0.0)) == pytest.approx(0.004 + 0.25 * 0.04)
+    assert n.curvature_sigma_1_m(1e-3, 0.0) == pytest.approx(3e-4 + 0.2 * 1e-3)
