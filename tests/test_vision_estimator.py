@@ -336,32 +336,35 @@ def test_options_from_the_vision_table():
 
 
 def test_vertical_curve_response_predicts_the_pitch_error():
-    """Where a sag or crest comes into view the road's vertical curvature changes across it, and
-    a single quadratic surface fitted to the lines reads the change as pitch.
-    ``pitch_per_vertical_curvature_m`` (the lane model's linear response to a curvature growing
-    ahead) times the fitted ``vertical_curvature_1_m`` beyond the vehicle's own (the axis's ``d
-    atan(grade) / ds`` and the banked curve's ``-kappa sin(bank)``, here from the truth) predicts
-    most of that error. These are single frames seeded with the true pose and no previous frame,
-    so the vertical curvature is free and noisier than in a video, where the previous frame's is
-    its prior: measured 0.283 -> 0.148 deg RMS over the five frames with a free curvature (gains
-    -5.2 to -6.1 m), hence the bar at 0.6 of the error; over the bench's HD hill drive, frame by
-    frame as a video, 0.045 -> 0.022 deg (notes, ninth session)."""
-    times = [2.5, 3.0, 3.5, 9.0, 9.5, 12.5]
+    """Where a sag comes into view the road's vertical curvature changes across it, and a single
+    quadratic surface fitted to the lines reads the change as pitch: on the hill drive's first
+    vertical curve (HD, no bank, 1.6-3.5 s) 0.02-0.08 deg. ``pitch_per_vertical_curvature_m``
+    (the lane model's linear response to a curvature growing ahead) times the fitted
+    ``vertical_curvature_1_m`` beyond the vehicle's own (``d atan(grade) / ds`` of the road's
+    axis, and ``-kappa sin(bank)``, here from the truth) predicts it. The frames in sequence
+    at 10 fps, as a video gives them (the previous frame's curvature the prior; seeded from
+    elsewhere the pose is solved with the curvature held, and the estimator reports no gain
+    then). Measured: 0.062 -> 0.007 deg RMS over the 20 frames, a gain on all 20 (-5.7 to
+    -7.1 m); over the bench's whole HD hill drive at 30 fps 0.045 -> 0.022 deg (notes, ninth
+    session). Bars: a quarter of the error, and a gain on 15 of the 20 frames."""
+    times = np.arange(1.6, 3.55, 0.1)
     sc, road, images, truth = small_drive("hill_banked_curve_5deg", times, 1280, 720)
     rd = build_road(sc)
     axis = lambda s: (math.atan(rd.grade(s + 1.0)) - math.atan(rd.grade(s - 1.0))) / 2.0   # noqa: E731
+    estimator = Estimator(sc.camera, sc.mount, road)
     e, r = [], []
     for i in range(len(times)):
-        est = estimate(images[i], sc.camera, sc.mount, truth_rpy(truth, i), road=road)
+        est = estimator.estimate(images[i])
         assert est.valid, est.reason
-        if not math.isfinite(est.pitch_per_vertical_curvature_m):
-            continue                      # a vertical curvature within 3 sigma of 0: held at 0
-        assert -8.0 < est.pitch_per_vertical_curvature_m < -3.0, (times[i], est.pitch_per_vertical_curvature_m)
-        here = axis(truth.station_m[i]) - truth.curvature_1_m[i] * math.sin(math.radians(truth.bank_deg[i]))
         ep = math.degrees(est.pitch_rad) - truth.pitch_deg[i]
         e.append(ep)
+        if not math.isfinite(est.pitch_per_vertical_curvature_m):
+            r.append(ep)                  # no gain: nothing to correct with
+            continue
+        assert -8.0 < est.pitch_per_vertical_curvature_m < -3.0, (times[i], est.pitch_per_vertical_curvature_m)
+        here = axis(truth.station_m[i]) - truth.curvature_1_m[i] * math.sin(math.radians(truth.bank_deg[i]))
         r.append(ep - math.degrees(est.pitch_per_vertical_curvature_m * (est.vertical_curvature_1_m - here)))
     rms = lambda v: float(np.sqrt(np.mean(np.square(v))))   # noqa: E731
-    assert len(e) >= 4
-    assert rms(e) > 0.03                                    # the vertical curves are in these frames
-    assert rms(r) < 0.6 * rms(e), (e, r)
+    assert sum(a != b for a, b in zip(e, r)) >= 15
+    assert rms(e) > 0.04                                    # the vertical curve is in these frames
+    assert rms(r) < 0.25 * rms(e), (e, r)

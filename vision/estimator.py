@@ -776,6 +776,7 @@ class Estimator:
                 return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
         else:
             step = math.inf
+            held_last = False              # the last pose update held zeta where it was
             for it in range(o.refine_iterations):
                 iterations = it + 1
                 H, x0 = self.surface_of(phi, theta, psi)
@@ -797,12 +798,14 @@ class Estimator:
                     held = model.with_dzeta_prior(0.0, 1e-9)
                     dheld = held if o.vp == "tangent" else dmodel.with_dzeta_prior(0.0, 1e-9)
                     upd = self._pose_update(held, dheld, R, H, x0, zeta, use_eq10, ratio)
-                    if isinstance(upd, str) or max(abs(upd[0]), abs(upd[1] - psi),
-                                                   abs(upd[2] - theta)) <= _ZETA_POSE_STEP_RAD:
-                        upd = self._pose_update(model, dmodel, R, H, x0, zeta, use_eq10, ratio)
-                    else:
+                    held_last = not (isinstance(upd, str) or max(abs(upd[0]), abs(upd[1] - psi),
+                                                                 abs(upd[2] - theta)) <= _ZETA_POSE_STEP_RAD)
+                    if held_last:
                         model, dmodel = held, dheld
+                    else:
+                        upd = self._pose_update(model, dmodel, R, H, x0, zeta, use_eq10, ratio)
                 else:
+                    held_last = False
                     upd = self._pose_update(model, dmodel, R, H, x0, zeta, use_eq10, ratio)
                 if isinstance(upd, str):
                     return VisionEstimate.invalid(upd, o.method, debug=dbg)
@@ -895,8 +898,10 @@ class Estimator:
             if o.refine_iterations > 0 and model.linear is not None:
                 response = self._twist_response(model, H, x_c, zeta, x_mean, dir_rows, J_vehicle, curvature_row)
         per_zeta = math.nan
+        # only where the pose was solved with zeta free: held (far from the pose: single frames
+        # seeded from elsewhere, large steps) the pitch took up the curvature the fit left out
         if o.refine_iterations > 0 and model.linear is not None and model.i_dzeta >= 0 \
-                and not math.isfinite(model.zeta_free_sigma):
+                and not math.isfinite(model.zeta_free_sigma) and not held_last:
             per_zeta = self._sag_change_response(model, H, x_c, zeta, dir_rows, J_vehicle)
         zeta_sigma = model.zeta_free_sigma if math.isfinite(model.zeta_free_sigma) else model.sigma_dzeta
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
