@@ -44,6 +44,18 @@ class ImageEdges:
 
 
 @nb.njit(cache=True)
+def _road_levels(img, v, l0, l1, r0, r1):  # pragma: no cover (numba)
+    """Mean grey of row ``v`` over the bands ``[l0, l1)`` and ``(r0, r1]`` beside a marker."""
+    bl = 0.0
+    for j in range(l0, l1):
+        bl += img[v, j]
+    br = 0.0
+    for j in range(r0 + 1, r1 + 1):
+        br += img[v, j]
+    return bl / (l1 - l0), br / (r1 - r0)
+
+
+@nb.njit(cache=True)
 def _cut(img, lines, centers, wpx, mode):  # pragma: no cover (numba)
     """Measure one marker on each cut ``lines[r]`` (a row of ``img``) near ``centers[r]``.
 
@@ -81,14 +93,7 @@ def _cut(img, lines, centers, wpx, mode):  # pragma: no cover (numba)
         r1 = r0 + m
         if l0 < 0 or r1 > W - 1:
             continue
-        bl = 0.0
-        for j in range(l0, l1):
-            bl += img[v, j]
-        bl /= (l1 - l0)
-        br = 0.0
-        for j in range(r0 + 1, r1 + 1):
-            br += img[v, j]
-        br /= (r1 - r0)
+        bl, br = _road_levels(img, v, l0, l1, r0, r1)
         ok = True
         a = 0.0
         b = 0.0
@@ -120,14 +125,7 @@ def _cut(img, lines, centers, wpx, mode):  # pragma: no cover (numba)
             if l0 < 0 or r1 > W - 1:
                 ok = False
                 break
-            bl = 0.0
-            for j in range(l0, l1):
-                bl += img[v, j]
-            bl /= (l1 - l0)
-            br = 0.0
-            for j in range(r0 + 1, r1 + 1):
-                br += img[v, j]
-            br /= (r1 - r0)
+            bl, br = _road_levels(img, v, l0, l1, r0, r1)
         if not ok or not b > a:
             continue
         con[r] = paint - 0.5 * (bl + br)
