@@ -119,6 +119,12 @@ class VisionEstimate:
         banked curve). 0 with ``vertical_curvature=False``.
     vertical_curvature_sigma_1_m : float
         Its 1-sigma from the lane model's covariance, 1/m.
+    pitch_per_vertical_curvature_m : float
+        The pitch's error, rad, per 1/m of ``vertical_curvature_1_m`` beyond the vertical
+        curvature at the vehicle: where that curvature changes across the view (a sag or crest
+        coming into view) the single quadratic surface reads the change as pitch
+        (:meth:`Estimator._sag_change_response`). NaN where ``zeta`` was held (within
+        ``vertical_curvature_t_min`` sigma of 0, or the pose solved with it held).
     roll_lookahead_m : float
         How far ahead of the vehicle's contact point the roll was measured, m: the mean distance
         of the cross-sections. In a superelevation runoff the road there is banked differently
@@ -1073,16 +1079,9 @@ class Estimator:
         vision's own twist ahead). About 0.35 ms a frame; refitting the lane model to displaced
         points instead (which also re-derives the lines' concentric scale) gave the same gains
         within 1-3 % (median, up to 15 % on single frames in curves) at 0.85 ms."""
-        x, y, k_of = model.linear[0], model.linear[1], model.linear[2]
+        x, y = model.linear[0], model.linear[1]
         J = model.n_lines
-        j_of = model.edge_line[k_of]
-        if model.c.size <= 2:
-            slope = _line_slopes(x, j_of, model.b, model.line_scale, model.c)
-        else:
-            slope = np.empty_like(x)
-            for j in range(J):
-                sel = j_of == j
-                slope[sel] = model.slope(j, x[sel])
+        slope = _fit_point_slopes(model)
         # the road turns about its centre: the middle line of three, else midway between two
         mid = [1] if J == 3 else [0, J - 1]
         shape, shape0 = model._shape(x), model._shape(x0)        # common to the lines' edges
@@ -1096,9 +1095,7 @@ class Estimator:
         rows = np.zeros((3, model.cov.shape[0]))
         if model.c.size:
             rows[0] = curvature_row       # the outer lines' mean, as the curvature's sigma takes it
-        Jv, cam = J_vehicle, dir_rows
-        rows[1] = Jv[1, 1] * cam[1] + Jv[1, 2] * cam[0]                         # vehicle pitch
-        rows[2] = Jv[2, 1] * cam[1] + Jv[2, 2] * cam[0]                         # vehicle yaw
+        rows[1], rows[2] = _pitch_yaw_rows(J_vehicle, dir_rows)
         out = np.zeros((3, 2))
         for col in range(2):
             out[:, col] = rows @ model.linear_response(moves[col])
@@ -1120,19 +1117,14 @@ class Estimator:
         with -5.9 m, and the correction takes it from 0.045 to 0.022 deg RMS (notes, ninth
         session). The yaw's response from the same profile (about +1 m) does not match its
         error's regression (+6.8 m) and is not reported."""
-        x, y, k_of = model.linear[0], model.linear[1], model.linear[2]
-        j_of = model.edge_line[k_of]
-        slope = np.empty_like(x)
-        for j in range(model.n_lines):
-            sel = j_of == j
-            slope[sel] = model.slope(j, x[sel])
+        x, y = model.linear[0], model.linear[1]
         u = x - x0
-        lever = (y - x * slope) / (H - 0.5 * zeta * u * u + zeta * u * x)
+        lever = (y - x * _fit_point_slopes(model)) / (H - 0.5 * zeta * u * u + zeta * u * x)
         dp = model.linear_response(np.where(u > 0, u**3 / 6.0, 0.0) * lever, priors=False)
         r_zeta = float(dp[model.i_dzeta])
         if not abs(r_zeta) > 0:
             return math.nan
-        return float((J_vehicle[1, 1] * dir_rows[1] + J_vehicle[1, 2] * dir_rows[0]) @ dp) / r_zeta
+        return float(_pitch_yaw_rows(J_vehicle, dir_rows)[0] @ dp) / r_zeta
 
     def _cross_x(self, model: LaneModel):
         """Cross-sections along the road: one at the farthest of the edges' near ends (the
@@ -1326,6 +1318,25 @@ def _twist_moves(x, y, slope, pivot, pivot0, x0, H, zeta, xl):  # pragma: no cov
         out[0, i] = dz1 * lever
         out[1, i] = dz2 * lever
     return out
+
+
+def _fit_point_slopes(model: LaneModel) -> np.ndarray:
+    """The slope ``dy/dx`` of each lane-fit point's line at the point (``model.linear``'s order)."""
+    x, j_of = model.linear[0], model.edge_line[model.linear[2]]
+    if model.c.size <= 2:
+        return _line_slopes(x, j_of, model.b, model.line_scale, model.c)
+    slope = np.empty_like(x)
+    for j in range(model.n_lines):
+        sel = j_of == j
+        slope[sel] = model.slope(j, x[sel])
+    return slope
+
+
+def _pitch_yaw_rows(J_vehicle, dir_rows):
+    """First-order rows of the vehicle's pitch and yaw in the lane model's parameters, from the
+    camera's ``(psi1, theta1)`` rows (:func:`_direction_rows`) through :func:`_vehicle_jacobian`."""
+    return (J_vehicle[1, 1] * dir_rows[1] + J_vehicle[1, 2] * dir_rows[0],
+            J_vehicle[2, 1] * dir_rows[1] + J_vehicle[2, 2] * dir_rows[0])
 
 
 @nb.njit(cache=True)

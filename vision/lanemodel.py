@@ -128,7 +128,7 @@ class LaneModel:
         """Change of the parameters ``[a, b, c, dzeta]`` when the fit's points (``linear[0:2]``,
         ``x`` and ``y`` in the fit's order) move laterally by ``dy``: ``Ai A^T W dy`` of the
         second pass, then each prior on ``dzeta`` applied since (a Kalman update is linear in
-        the parameters). The design is held: a refit would also re-derive its weights, the lines'
+        the parameters; ``priors=False``: the fit's own response, without them). The design is held: a refit would also re-derive its weights, the lines'
         concentric scale and the ``dzeta`` column from the moved points, which on curves adds a
         first-order term through the scale (at 5e-3 1/m: slopes 7 %, curvature 1.3 % off;
         tests/test_vision_kernels.py)."""
