@@ -1115,8 +1115,9 @@ class Estimator:
         fit puts it). On the HD hill drive it is -5.1 to -6.6 m (median -5.3); against the
         truth, the vision's pitch error regresses on the fitted ``zeta`` minus the vehicle's
         with -5.9 m, and the correction takes it from 0.045 to 0.022 deg RMS (notes, ninth
-        session). The yaw's response from the same profile (about +1 m) does not match its
-        error's regression (+6.8 m) and is not reported."""
+        session). The yaw's response from the same profile (+4 m in the first sag, +1 m in the
+        median over the drive) is not reported: modelled like the pitch it made the fused yaw
+        worse on every benchmark drive (notes)."""
         x, y = model.linear[0], model.linear[1]
         u = x - x0
         lever = (y - x * _fit_point_slopes(model)) / (H - 0.5 * zeta * u * u + zeta * u * x)
