@@ -457,12 +457,21 @@ def live_cost_us(drive: Path) -> float:
     cfg = load_config(drive / "config.toml")
     msgs = list(can.LogReader(next(drive.glob("can.*"))))
     vis = read_vision(drive.parent / (drive.name + "-run"))
+    from vision.video import TWIST_RESPONSE_COLUMNS
+
+    # every number of vision.csv the filter takes (the twist's and the vertical curve's too: the
+    # cost of their updates is part of the per-sample cost)
     ests = [(r.t_s, VisionEstimate(math.radians(r.roll_deg), math.radians(r.pitch_deg), math.radians(r.yaw_deg),
                                    math.radians(r.roll_sigma_deg), math.radians(r.pitch_sigma_deg),
                                    math.radians(r.yaw_sigma_deg), bool(r.valid), curvature_1_m=r.curvature_1_m,
                                    curvature_sigma_1_m=r.curvature_sigma_1_m, roll_lookahead_m=r.roll_lookahead_m,
                                    pitch_per_twist_m=r.pitch_per_twist_m, yaw_per_twist_m=r.yaw_per_twist_m,
-                                   lateral_offset_m=r.lateral_offset_m))
+                                   lateral_offset_m=r.lateral_offset_m,
+                                   road_twist_rad_m=math.radians(r.road_twist_deg_per_m),
+                                   road_twist_sigma_rad_m=math.radians(r.road_twist_sigma_deg_per_m),
+                                   twist_response=tuple(getattr(r, c) for c in TWIST_RESPONSE_COLUMNS),
+                                   vertical_curvature_1_m=r.vertical_curvature_1_m,
+                                   pitch_per_vertical_curvature_m=r.pitch_per_vertical_curvature_m))
             for r in vis.itertuples()]
     live = LiveFusion(cfg)
     j, warm = 0, len(msgs) // 10  # the first tenth loads the compiled kernels: not timed
