@@ -453,12 +453,11 @@ def live_cost_us(drive: Path) -> float:
     from fusion.config import load_config
     from fusion.realtime import LiveFusion
     from vision.estimator import VisionEstimate
+    from vision.video import TWIST_RESPONSE_COLUMNS
 
     cfg = load_config(drive / "config.toml")
     msgs = list(can.LogReader(next(drive.glob("can.*"))))
     vis = read_vision(drive.parent / (drive.name + "-run"))
-    from vision.video import TWIST_RESPONSE_COLUMNS
-
     # every number of vision.csv the filter takes (the twist's and the vertical curve's too: the
     # cost of their updates is part of the per-sample cost)
     ests = [(r.t_s, VisionEstimate(math.radians(r.roll_deg), math.radians(r.pitch_deg), math.radians(r.yaw_deg),

@@ -908,7 +908,7 @@ class Estimator:
         # seeded from elsewhere, large steps) the pitch took up the curvature the fit left out
         if o.refine_iterations > 0 and model.linear is not None and model.i_dzeta >= 0 \
                 and not math.isfinite(model.zeta_free_sigma) and not held_last:
-            per_zeta = self._sag_change_response(model, H, x_c, zeta, dir_rows, J_vehicle)
+            per_zeta = self._sag_change_response(model, dir_rows, J_vehicle)
         zeta_sigma = model.zeta_free_sigma if math.isfinite(model.zeta_free_sigma) else model.sigma_dzeta
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
@@ -1079,9 +1079,16 @@ class Estimator:
         vision's own twist ahead). About 0.35 ms a frame; refitting the lane model to displaced
         points instead (which also re-derives the lines' concentric scale) gave the same gains
         within 1-3 % (median, up to 15 % on single frames in curves) at 0.85 ms."""
-        x, y = model.linear[0], model.linear[1]
+        x, y, k_of = model.linear[0], model.linear[1], model.linear[2]
         J = model.n_lines
-        slope = _fit_point_slopes(model)
+        j_of = model.edge_line[k_of]
+        if model.c.size <= 2:
+            slope = _line_slopes(x, j_of, model.b, model.line_scale, model.c)
+        else:
+            slope = np.empty_like(x)
+            for j in range(J):
+                sel = j_of == j
+                slope[sel] = model.slope(j, x[sel])
         # the road turns about its centre: the middle line of three, else midway between two
         mid = [1] if J == 3 else [0, J - 1]
         shape, shape0 = model._shape(x), model._shape(x0)        # common to the lines' edges
@@ -1102,14 +1109,15 @@ class Estimator:
         return out
 
     @staticmethod
-    def _sag_change_response(model: LaneModel, H: float, x0: float, zeta: float, dir_rows, J_vehicle) -> float:
+    def _sag_change_response(model: LaneModel, dir_rows, J_vehicle) -> float:
         """How the pitch errs where the road's vertical curvature changes across the view: rad
         per 1/m of the fitted ``zeta`` beyond the vertical curvature at the vehicle, i.e. metres
         (``pitch_per_vertical_curvature_m``). A single quadratic surface fitted to a view whose
         curvature changes reads the change as pitch. The profile: a height ``zeta' u^3 / 6``
         over the estimator's surface (``u = x - x0``: the curvature grows linearly ahead from 0
-        at the vehicle), the points' lateral moves through the vertical-curvature column's
-        lever (:mod:`vision.lanemodel`), the fit's linear response without the prior from the
+        at the vehicle), which moves each point laterally by ``u / 3`` times the fit's own
+        vertical-curvature column (``u^2 / (2 D) (y - x y')`` per unit of ``zeta``,
+        :mod:`vision.lanemodel`; the height ``u^3 / 6`` is ``u / 3`` times ``u^2 / 2``), the fit's linear response without the prior from the
         previous frame: the ratio of the free fit's pitch and ``zeta`` responses (the prior
         holds ``zeta`` where the frames before saw it, which on a steady change is where a free
         fit puts it). On the HD hill drive it is -5.1 to -6.6 m (median -5.3); against the
@@ -1118,10 +1126,8 @@ class Estimator:
         session). The yaw's response from the same profile (+4 m in the first sag, +1 m in the
         median over the drive) is not reported: modelled like the pitch it made the fused yaw
         worse on every benchmark drive (notes)."""
-        x, y = model.linear[0], model.linear[1]
-        u = x - x0
-        lever = (y - x * _fit_point_slopes(model)) / (H - 0.5 * zeta * u * u + zeta * u * x)
-        dp = model.linear_response(np.where(u > 0, u**3 / 6.0, 0.0) * lever, priors=False)
+        u = model.linear[0] - model.sag[1]
+        dp = model.linear_response(np.where(u > 0, u / 3.0 * model.linear[4], 0.0), priors=False)
         r_zeta = float(dp[model.i_dzeta])
         if not abs(r_zeta) > 0:
             return math.nan
@@ -1319,18 +1325,6 @@ def _twist_moves(x, y, slope, pivot, pivot0, x0, H, zeta, xl):  # pragma: no cov
         out[0, i] = dz1 * lever
         out[1, i] = dz2 * lever
     return out
-
-
-def _fit_point_slopes(model: LaneModel) -> np.ndarray:
-    """The slope ``dy/dx`` of each lane-fit point's line at the point (``model.linear``'s order)."""
-    x, j_of = model.linear[0], model.edge_line[model.linear[2]]
-    if model.c.size <= 2:
-        return _line_slopes(x, j_of, model.b, model.line_scale, model.c)
-    slope = np.empty_like(x)
-    for j in range(model.n_lines):
-        sel = j_of == j
-        slope[sel] = model.slope(j, x[sel])
-    return slope
 
 
 def _pitch_yaw_rows(J_vehicle, dir_rows):
