@@ -237,12 +237,14 @@ class FusionStream:
                    curvature_sigma_1_m: float = math.nan, lookahead_m: float = 0.0,
                    twist_m: tuple[float, float] = (0.0, 0.0),
                    road_twist_rad_m: tuple[float, float] = (math.nan, math.nan),
-                   twist_response=(math.nan,) * 6, vertical_curvature=(math.nan, math.nan)) -> None:
+                   twist_response=(math.nan,) * 6, vertical_curvature=(math.nan, math.nan),
+                   yaw_per_curvature_m: float = math.nan) -> None:
         """A vision result: roll, pitch, yaw relative to the road at capture time ``t_s``
         (the other arguments: :class:`fusion.ekf.VisionMeasurement`; ``road_twist_rad_m``: the
         road twist and its 1-sigma, rad/m; ``twist_response``: the estimator's six gains;
         ``vertical_curvature``: the road's in view, 1/m, and the pitch error per 1/m of it
-        beyond the vehicle's, m)."""
+        beyond the vehicle's, m; ``yaw_per_curvature_m``: the yaw error per 1/m of the lane
+        curvature's, m)."""
         if not self.options.use_vision:
             return
         angles = np.asarray(angles_rad, dtype=float)
@@ -272,7 +274,8 @@ class FusionStream:
         item = VisionMeasurement(t_s, angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
                                  float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw,
                                  float(road_twist_rad_m[0]), float(road_twist_rad_m[1]),
-                                 tuple(float(g) for g in twist_response), tuple(float(g) for g in vertical_curvature))
+                                 tuple(float(g) for g in twist_response), tuple(float(g) for g in vertical_curvature),
+                                 float(yaw_per_curvature_m))
         if not self._hist or item.t_s > self._hist[-1].t:
             bisect.insort_right(self._pending, item, key=_time_of)   # the IMU has not reached it yet
         else:

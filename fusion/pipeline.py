@@ -96,7 +96,7 @@ def vision_inputs(vision: pd.DataFrame) -> pd.DataFrame:
     for c in ("pitch_per_twist_m", "yaw_per_twist_m"):
         if c not in v.columns:
             v[c] = 0.0
-    for c in ("road_twist_deg_per_m", "road_twist_sigma_deg_per_m") + TWIST_RESPONSE_COLUMNS + SAG_COLUMNS:
+    for c in ("road_twist_deg_per_m", "road_twist_sigma_deg_per_m", "yaw_per_curvature_m") + TWIST_RESPONSE_COLUMNS + SAG_COLUMNS:
         if c not in v.columns:
             v[c] = np.nan
     return v
@@ -155,6 +155,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         vrt = np.radians(v[["road_twist_deg_per_m", "road_twist_sigma_deg_per_m"]].to_numpy(dtype=float))
         vresp = v[list(TWIST_RESPONSE_COLUMNS)].to_numpy(dtype=float)
         vsag = v[list(SAG_COLUMNS)].to_numpy(dtype=float)
+        vyk = v["yaw_per_curvature_m"].to_numpy(dtype=float)
         vd = v["lateral_offset_m"].to_numpy(dtype=float)
     else:
         vt = np.zeros(0)
@@ -165,7 +166,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     t_list, speed_list, fresh_list = t.tolist(), speed.tolist(), fresh.tolist()   # Python scalars: cheaper per sample
     for k in tqdm(range(len(t)), desc="fuse", unit="sample", disable=not progress, mininterval=0.5):
         while j < len(vt) and vt[j] <= t_list[k]:
-            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j], vrt[j], vresp[j], vsag[j])
+            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j], vrt[j], vresp[j], vsag[j], vyk[j])
             j += 1
         stream.add_imu(t_list[k], gyro[k], accel[k], speed_list[k], fresh_list[k])
         X[k], Pm[k] = stream.ekf.x, stream.ekf.P

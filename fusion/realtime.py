@@ -189,7 +189,8 @@ class LiveFusion:
                                    est.curvature_sigma_1_m, est.roll_lookahead_m,
                                    (est.pitch_per_twist_m, est.yaw_per_twist_m),
                                    (est.road_twist_rad_m, est.road_twist_sigma_rad_m), est.twist_response,
-                                   (est.vertical_curvature_1_m, est.pitch_per_vertical_curvature_m))
+                                   (est.vertical_curvature_1_m, est.pitch_per_vertical_curvature_m),
+                                   est.yaw_per_curvature_m)
             if self.stream.counts["vision_too_old"] > old:
                 self._count_in_row("old", f"with results older than the filter's history (this one "
                                    f"{t_cap:.3f} s, the bus at {self.stream.t_s:.3f} s): is the camera's clock "

@@ -470,7 +470,8 @@ def live_cost_us(drive: Path) -> float:
                                    road_twist_sigma_rad_m=math.radians(r.road_twist_sigma_deg_per_m),
                                    twist_response=tuple(getattr(r, c) for c in TWIST_RESPONSE_COLUMNS),
                                    vertical_curvature_1_m=r.vertical_curvature_1_m,
-                                   pitch_per_vertical_curvature_m=r.pitch_per_vertical_curvature_m))
+                                   pitch_per_vertical_curvature_m=r.pitch_per_vertical_curvature_m,
+                                   yaw_per_curvature_m=r.yaw_per_curvature_m))
             for r in vis.itertuples()]
     live = LiveFusion(cfg)
     j, warm = 0, len(msgs) // 10  # the first tenth loads the compiled kernels: not timed

@@ -125,6 +125,12 @@ class VisionEstimate:
         coming into view) the single quadratic surface reads the change as pitch
         (:meth:`Estimator._sag_change_response`). NaN where ``zeta`` was held (within
         ``vertical_curvature_t_min`` sigma of 0, or the pose solved with it held).
+    yaw_per_curvature_m : float
+        The yaw's error, rad, per 1/m of ``curvature_1_m``'s, as the lane fit couples them (a
+        line fitted more bent points more to the inside at the vehicle): ``cov(yaw, kappa) /
+        var(kappa)`` of the fit's covariance, m (:meth:`Estimator._yaw_per_curvature`; 4-7 m on
+        the rendered drives, and it predicts their yaw errors from their curvature errors:
+        ``tests/test_vision_estimator.py``). NaN where the fit chose straight lines.
     roll_lookahead_m : float
         How far ahead of the vehicle's contact point the roll was measured, m: the mean distance
         of the cross-sections. In a superelevation runoff the road there is banked differently
@@ -203,6 +209,7 @@ class VisionEstimate:
     road_twist_sigma_rad_m: float = math.nan
     twist_response: tuple[float, ...] = (math.nan,) * 6
     pitch_per_vertical_curvature_m: float = math.nan
+    yaw_per_curvature_m: float = math.nan
     road_twist_span_m: tuple[float, ...] = ()
     road_axis: tuple[float, ...] = ()
     road_twist_used: float = 0.0
@@ -868,6 +875,7 @@ class Estimator:
         curvature = float(_mean_rows([k for k, _ in curv])) if curv else 0.0
         curvature_row = _mean_rows([r for _, r in curv]) if curv else None
         curvature_sigma = self._curvature_sigma(model, curvature, curvature_row)
+        yaw_per_curvature = self._yaw_per_curvature(model, dir_rows, J_vehicle, curvature_row)
         x_mean = float(_mean(x_rows))
         lookahead = x_mean - x_c
         span = (float(x_rows.min()) - x_c, float(x_rows.max()) - x_c)
@@ -939,7 +947,7 @@ class Estimator:
             yaw_per_twist_m=0.0 if twisted else centres[0] * centres[1] / H,
             road_twist_rad_m=twist, road_twist_sigma_rad_m=twist_sigma,
             twist_response=tuple(map(float, response.ravel())),
-            pitch_per_vertical_curvature_m=per_zeta,
+            pitch_per_vertical_curvature_m=per_zeta, yaw_per_curvature_m=yaw_per_curvature,
             road_twist_span_m=span if use_eq10 else (),
             road_axis=tuple(map(float, _centre_axis(model))) if n_lines == 3 else (),
             road_twist_used=bank_change_L,
@@ -1185,6 +1193,19 @@ class Estimator:
         cov = Jc @ model.cov @ Jc.T
         cov[0, 0] += sig_f**2
         return cov
+
+    @staticmethod
+    def _yaw_per_curvature(model: LaneModel, dir_rows, J_vehicle, curvature_row) -> float:
+        """The yaw's error per 1/m of the curvature's, as the lane fit couples them:
+        ``cov(yaw, kappa) / var(kappa)`` from the lane model's covariance (m; NaN where the fit
+        has no curvature)."""
+        if curvature_row is None or not model.c.size:
+            return math.nan
+        ck = model.cov @ curvature_row
+        var = float(curvature_row @ ck)
+        if not var > 0.0:
+            return math.nan
+        return float(_pitch_yaw_rows(J_vehicle, dir_rows)[1] @ ck) / var
 
     def _curvature_sigma(self, model: LaneModel, curvature: float, row) -> float:
         """1-sigma of the reported curvature: the lane model's covariance (vertical curvature

@@ -44,7 +44,7 @@ VISION_COLUMNS = (
     "pitch_per_twist_m", "yaw_per_twist_m", "road_twist_deg_per_m", "road_twist_sigma_deg_per_m",
     *TWIST_RESPONSE_COLUMNS, "road_twist_bank_change_deg",
     "vertical_curvature_1_m", "vertical_curvature_sigma_1_m", "pitch_per_vertical_curvature_m",
-    "lateral_offset_m", "line_spacing_m", "n_lines", "roll_equation", "vp_x_px", "vp_y_px", "edge_rms_px", "iterations", "warps", "estimator_ms", "reason",
+    "yaw_per_curvature_m", "lateral_offset_m", "line_spacing_m", "n_lines", "roll_equation", "vp_x_px", "vp_y_px", "edge_rms_px", "iterations", "warps", "estimator_ms", "reason",
 )
 
 #: Columns of ``vision.csv`` renamed on 2026-11-26 (a unit in every name): old name -> new one.
@@ -175,7 +175,7 @@ ESTIMATE_COLUMNS = (
     "curvature_1_m", "curvature_sigma_1_m", "roll_lookahead_m", "pitch_per_twist_m", "yaw_per_twist_m",
     "road_twist_deg_per_m", "road_twist_sigma_deg_per_m", *TWIST_RESPONSE_COLUMNS, "road_twist_bank_change_deg",
     "vertical_curvature_1_m", "vertical_curvature_sigma_1_m", "pitch_per_vertical_curvature_m",
-    "lateral_offset_m", "line_spacing_m",
+    "yaw_per_curvature_m", "lateral_offset_m", "line_spacing_m",
 )
 
 
@@ -201,6 +201,7 @@ def vision_row(t_s: float, frame: int, est: VisionEstimate, ms: float = math.nan
         "vertical_curvature_1_m": est.vertical_curvature_1_m,
         "vertical_curvature_sigma_1_m": est.vertical_curvature_sigma_1_m,
         "pitch_per_vertical_curvature_m": est.pitch_per_vertical_curvature_m,
+        "yaw_per_curvature_m": est.yaw_per_curvature_m,
         "lateral_offset_m": est.lateral_offset_m, "line_spacing_m": est.line_spacing_m,
         "n_lines": est.n_lines, "roll_equation": est.roll_equation,
         "vp_x_px": est.vp_px[0], "vp_y_px": est.vp_px[1], "edge_rms_px": est.edge_rms_px,
