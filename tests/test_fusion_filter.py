@@ -224,7 +224,6 @@ def test_vertical_curve_in_view_pitch_term():
     assert pitch["with"] < 0.015 and pitch["with"] < 0.5 * pitch["without"], pitch
 
 
-
 def test_yaw_curvature_coupling_term():
     """The lane fit's yaw and curvature errors are coupled: ``yaw error = L * curvature error``
     with ``L`` about 4-7 m (``vision.VisionEstimate.yaw_per_curvature_m``; correlation 0.75-0.93

@@ -377,10 +377,9 @@ def test_yaw_per_curvature_predicts_the_yaw_error():
     truth predicts the yaw's error. The bundled 640x360 sample drive's video (PyAV), in its
     steady 6 deg curve (6-12 s; the video from 5 s, the wheel speed as ``vifusion run`` gives
     it): measured 0.351 -> 0.116 deg RMS over 169 frames, the gain 2.4-6.9 m on every valid
-    frame (4.1 in the median); the
-    bench's HD drives over the whole drive 0.124 -> 0.073 (60 s), 0.091 -> 0.049 (hill), 0.105
-    -> 0.056 (hold-out) with the gain 4.3-7.5 m where the fit has a curvature (notes, tenth
-    session). Bars: the gain between 2 and 9 m (the fit's points lie 6-25 m ahead, a yaw and a
+    frame (4.1 in the median); the bench's HD drives over the whole drive 0.124 -> 0.073 (60 s),
+    0.091 -> 0.049 (hill), 0.105 -> 0.056 (hold-out) with the gain 4.3-7.5 m where the fit has
+    a curvature (notes, tenth session). Bars: the gain between 2 and 9 m (the fit's points lie 6-25 m ahead, a yaw and a
     curvature trade over their mean distance beyond the contact point), and the yaw's error
     down to 0.6 of itself."""
     import pandas as pd

@@ -875,7 +875,10 @@ class Estimator:
         curvature = float(_mean_rows([k for k, _ in curv])) if curv else 0.0
         curvature_row = _mean_rows([r for _, r in curv]) if curv else None
         curvature_sigma = self._curvature_sigma(model, curvature, curvature_row)
-        yaw_per_curvature = self._yaw_per_curvature(model, dir_rows, J_vehicle, curvature_row)
+        # the vehicle's pitch and yaw as first-order rows in the lane model's parameters, for the
+        # gains below (the yaw's coupling to the curvature, the twist and vertical-curve responses)
+        py_rows = _pitch_yaw_rows(J_vehicle, dir_rows)
+        yaw_per_curvature = self._yaw_per_curvature(model, py_rows[1], curvature_row)
         x_mean = float(_mean(x_rows))
         lookahead = x_mean - x_c
         span = (float(x_rows.min()) - x_c, float(x_rows.max()) - x_c)
@@ -898,7 +901,7 @@ class Estimator:
             # the map's uncertainty through the outputs' response to a twist here and ahead
             k = _TWIST_MAP_SIGMA_SCALE
             if model.linear is not None:
-                sens = np.abs(self._twist_response(model, H, x_c, zeta, x_mean, dir_rows, J_vehicle, curvature_row))
+                sens = np.abs(self._twist_response(model, H, x_c, zeta, x_mean, py_rows, curvature_row))
                 curvature_sigma = math.hypot(curvature_sigma, k * (sens[0, 0] * near_sigma + sens[0, 1] * span_sigma))
                 s_pitch = math.hypot(s_pitch, k * (sens[1, 0] * near_sigma + sens[1, 1] * span_sigma))
                 s_yaw = math.hypot(s_yaw, k * (sens[2, 0] * near_sigma + sens[2, 1] * span_sigma))
@@ -910,13 +913,13 @@ class Estimator:
         else:
             response = np.full((3, 2), math.nan)
             if o.refine_iterations > 0 and model.linear is not None:
-                response = self._twist_response(model, H, x_c, zeta, x_mean, dir_rows, J_vehicle, curvature_row)
+                response = self._twist_response(model, H, x_c, zeta, x_mean, py_rows, curvature_row)
         per_zeta = math.nan
         # only where the pose was solved with zeta free: held (far from the pose: single frames
         # seeded from elsewhere, large steps) the pitch took up the curvature the fit left out
         if o.refine_iterations > 0 and model.linear is not None and model.i_dzeta >= 0 \
                 and not math.isfinite(model.zeta_free_sigma) and not held_last:
-            per_zeta = self._sag_change_response(model, dir_rows, J_vehicle)
+            per_zeta = self._sag_change_response(model, py_rows[0])
         zeta_sigma = model.zeta_free_sigma if math.isfinite(model.zeta_free_sigma) else model.sigma_dzeta
         lateral = -float(cam_off[1]) - 0.5 * (centres[0] + centres[1])
         spacing = abs(centres[0] - centres[1]) / (n_lines - 1)
@@ -1060,8 +1063,8 @@ class Estimator:
         return model
 
     @staticmethod
-    def _twist_response(model: LaneModel, H: float, x0: float, zeta: float, x_ahead_m: float, dir_rows,
-                        J_vehicle, curvature_row) -> np.ndarray:
+    def _twist_response(model: LaneModel, H: float, x0: float, zeta: float, x_ahead_m: float, py_rows,
+                        curvature_row) -> np.ndarray:
         """How the outputs respond to the road twisting in view: ``(3, 2)``, rows curvature
         (1/m per rad/m), pitch and yaw (rad per rad/m), columns the twist at the contact point
         and at ``x_ahead_m`` (the cross-sections), the twist ``tau(x) = d bank / dx`` linear
@@ -1105,19 +1108,19 @@ class Estimator:
         xl = max(x_ahead_m - x0, 1.0)
         # the points' lateral moves per rad/m of the two twist profiles (:func:`_twist_moves`)
         moves = _twist_moves(x, y, slope, pivot, float(pivot0), float(x0), float(H), float(zeta), float(xl))
-        # first-order rows of the outputs in the lane model's parameters (``dir_rows``: the
-        # camera's psi1, theta1, :func:`_direction_rows`; ``J_vehicle``: :func:`_vehicle_jacobian`)
+        # first-order rows of the outputs in the lane model's parameters (``py_rows``: the
+        # vehicle's pitch and yaw, :func:`_pitch_yaw_rows`)
         rows = np.zeros((3, model.cov.shape[0]))
         if model.c.size:
             rows[0] = curvature_row       # the outer lines' mean, as the curvature's sigma takes it
-        rows[1], rows[2] = _pitch_yaw_rows(J_vehicle, dir_rows)
+        rows[1], rows[2] = py_rows
         out = np.zeros((3, 2))
         for col in range(2):
             out[:, col] = rows @ model.linear_response(moves[col])
         return out
 
     @staticmethod
-    def _sag_change_response(model: LaneModel, dir_rows, J_vehicle) -> float:
+    def _sag_change_response(model: LaneModel, pitch_row) -> float:
         """How the pitch errs where the road's vertical curvature changes across the view: rad
         per 1/m of the fitted ``zeta`` beyond the vertical curvature at the vehicle, i.e. metres
         (``pitch_per_vertical_curvature_m``). A single quadratic surface fitted to a view whose
@@ -1139,7 +1142,7 @@ class Estimator:
         r_zeta = float(dp[model.i_dzeta])
         if not abs(r_zeta) > 0:
             return math.nan
-        return float(_pitch_yaw_rows(J_vehicle, dir_rows)[0] @ dp) / r_zeta
+        return float(pitch_row @ dp) / r_zeta
 
     def _cross_x(self, model: LaneModel):
         """Cross-sections along the road: one at the farthest of the edges' near ends (the
@@ -1195,17 +1198,17 @@ class Estimator:
         return cov
 
     @staticmethod
-    def _yaw_per_curvature(model: LaneModel, dir_rows, J_vehicle, curvature_row) -> float:
+    def _yaw_per_curvature(model: LaneModel, yaw_row, curvature_row) -> float:
         """The yaw's error per 1/m of the curvature's, as the lane fit couples them:
         ``cov(yaw, kappa) / var(kappa)`` from the lane model's covariance (m; NaN where the fit
-        has no curvature)."""
+        has no curvature). ``yaw_row``, ``curvature_row``: their first-order rows."""
         if curvature_row is None or not model.c.size:
             return math.nan
         ck = model.cov @ curvature_row
         var = float(curvature_row @ ck)
         if not var > 0.0:
             return math.nan
-        return float(_pitch_yaw_rows(J_vehicle, dir_rows)[1] @ ck) / var
+        return float(yaw_row @ ck) / var
 
     def _curvature_sigma(self, model: LaneModel, curvature: float, row) -> float:
         """1-sigma of the reported curvature: the lane model's covariance (vertical curvature
