@@ -45,7 +45,8 @@ def test_live_fusion_equals_the_offline_run(drive):
     imu, _ = read_log(drive / can_file, cfg.can, cfg.imu)
     frames = frames.assign(speed_m_s=frame_speeds(imu, frames["t_s"].to_numpy()))   # as vifusion run does
     vision, _ = estimate_video(drive / "video.mp4", frames, cfg.camera, cfg.mount, cfg.road,
-                               options_from_table(cfg.extra.get("vision")), progress=False)
+                               options_from_table(cfg.extra.get("vision")), progress=False,
+                               pieces=1)   # one run through the video, as the live stream
     opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
     offline = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts).fused
     # live: every frame's result is handed in once the bus has moved 80 ms past its capture
@@ -87,7 +88,8 @@ def sample_offline():
     imu, _ = read_log(SAMPLE_DRIVE / "can.blf", cfg.can, cfg.imu)
     frames = frames.assign(speed_m_s=frame_speeds(imu, frames["t_s"].to_numpy()))
     vision, _ = estimate_video(SAMPLE_DRIVE / "video.mp4", frames, cfg.camera, cfg.mount, cfg.road,
-                               options_from_table(cfg.extra.get("vision")), progress=False)
+                               options_from_table(cfg.extra.get("vision")), progress=False,
+                               pieces=1)   # one run through the video, as the live stream
     opts, _ = fusion_options_from_table(cfg.extra.get("fusion"))
     offline = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts).fused
     images = list(FrameSource(SAMPLE_DRIVE / "video.mp4").grey_frames())
@@ -206,7 +208,8 @@ def test_frames_handed_in_before_the_bus_released_their_time(drive):
     imu, _ = read_log(drive / can_file, cfg.can, cfg.imu)
     frames = frames.assign(speed_m_s=frame_speeds(imu, frames["t_s"].to_numpy()))
     vision, _ = estimate_video(drive / "video.mp4", frames, cfg.camera, cfg.mount, cfg.road,
-                               options_from_table(cfg.extra.get("vision")), progress=False)
+                               options_from_table(cfg.extra.get("vision")), progress=False,
+                               pieces=1)   # one run through the video, as the live stream
     live = LiveFusion(cfg)
     queue = list(zip(frames["t_s"], FrameSource(drive / "video.mp4").grey_frames()))
     got = []

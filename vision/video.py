@@ -223,7 +223,7 @@ def default_workers() -> int:
 def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Mount, road: RoadMarkings,
                    options: EstimatorOptions = EstimatorOptions(), *, progress: bool = True,
                    debug_video: str | os.PathLike | None = None, debug_fps: float | None = None,
-                   workers: int = 1, while_waiting: Callable[[], object] | None = None):
+                   workers: int = 1, while_waiting: Callable[[], object] | None = None, pieces: int | None = None):
     """Run the estimator over a video.
 
     Parameters
@@ -244,10 +244,13 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         Also write the debug video (:mod:`vision.debug`) there. It is written in frame order by
         one process: with a debug video the run uses one worker (``stats["workers"]`` says so).
     workers : int
-        Processes that share the frames. The video is cut into one contiguous piece per
-        process, each decoded from its own seek point and started :data:`WARM_UP_S` early
-        (the estimator needs no seed for correctness, but it carries the vertical curvature's
-        prior from frame to frame). 1 runs in this process.
+        Processes that share the pieces of the video (:func:`piece_count`: cut by the video's
+        length alone, so that the table does not depend on how many processes there are).
+        Each piece is decoded from its own seek point and started :data:`WARM_UP_S` early.
+        1 runs the pieces one after the other in this process.
+    pieces : int, optional
+        Where to cut the video instead: that many pieces (1: one run through it, as a live
+        stream of frames gets, :class:`fusion.realtime.LiveFusion`).
     while_waiting : callable, optional
         Work of the caller's that does not need the vision (``vifusion run``: the IMU-only
         filter), called once in this process while the workers estimate (before the frames
@@ -259,7 +262,7 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         One row per processed frame, :data:`VISION_COLUMNS`.
     stats : dict
         ``frames_read`` (decoded), ``frames_missing`` (listed in ``frames`` but not in the video),
-        ``valid`` (count), ``median_ms``, ``workers`` (processes used).
+        ``valid`` (count), ``median_ms``, ``workers`` (processes used), ``pieces``.
     """
     import pandas as pd
     from tqdm import tqdm
@@ -271,19 +274,21 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
     speeds = ({int(f): float(v) for f, v in zip(frames["frame"], frames["speed_m_s"])}
               if "speed_m_s" in frames else None)
     wanted = sorted(want)
-    warm_up = warm_up_frames(_fps_of(frames))
-    # a piece pays for its seek and warm-up only if it is longer than them: fewer workers on short videos
-    workers = 1 if debug_video is not None else max(1, min(int(workers), len(wanted) // (warm_up + _MIN_PIECE)))
+    fps = _fps_of(frames)
+    warm_up = warm_up_frames(fps)
+    if pieces is not None and int(pieces) < 1:
+        raise VisionError(f"pieces must be at least 1, got {pieces}")
+    jobs = _piece_jobs(src, wanted, want, (camera, mount, road, options), speeds,
+                       piece_count(len(wanted), fps, warm_up) if pieces is None else int(pieces), warm_up)
+    workers = 1 if debug_video is not None else max(1, min(int(workers), len(jobs)))
     bar = tqdm(total=len(wanted), desc="vision", unit="frame", disable=not progress)
     try:
         if workers == 1:
             if while_waiting is not None:
                 while_waiting()
-            rows, n_read = _estimate_piece(src, wanted, want, (camera, mount, road, options), debug_video,
-                                           debug_fps or _fps_of(frames), bar.update, speeds)
+            rows, n_read = _estimate_pieces_here(jobs, bar.update, debug_video, debug_fps or fps)
         else:
-            rows, n_read = _estimate_parallel(src, wanted, want, (camera, mount, road, options), workers, bar.update,
-                                              speeds, warm_up, while_waiting)
+            rows, n_read = _estimate_parallel(jobs, len(wanted), workers, bar.update, while_waiting)
     finally:
         bar.close()
     table = pd.DataFrame(rows, columns=list(VISION_COLUMNS))
@@ -294,22 +299,40 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         "valid": int(table["valid"].sum()) if len(table) else 0,
         "median_ms": float(table["estimator_ms"].median()) if len(table) else math.nan,
         "workers": workers,
+        "pieces": len(jobs),
     }
     return table, stats
 
 
-#: Smallest piece of a video given to one worker (frames) besides its warm-up: each piece costs a
-#: seek and a warm-up.
+#: Smallest piece of a video (frames) besides its warm-up: each piece costs a seek and a warm-up.
 _MIN_PIECE = 60
+#: Pieces per started minute of video (:func:`piece_count`): two keep both cores of a two-core
+#: machine busy on any video of a minute or more, at one warm-up (3 s) per 30 s of video.
+PIECES_PER_MINUTE = 2
 #: Seconds of video a worker's piece starts early (their rows dropped), for the estimator's
 #: frame-to-frame state (vertical-curvature prior, seed, the road's twist map) to forget the
 #: cold start. The map holds the twist of the road the vehicle will reach, measured 7-22 m ahead
 #: and kept up to 60 m (:data:`vision.twistmap.AHEAD_M`): 3 s at 20 m/s. With 1 s (30 frames) the
 #: hill drive's second piece began in a runoff with an empty map: vision yaw 0.219 deg RMS
 #: against 0.085 for one worker, the fused yaw 0.124 against 0.035; with 3 s 0.091 and 0.038
-#: (5 s: 0.088, 0.037). The rows after the cut then agree with one worker's within the seed's
-#: chaos (``tests/test_vision_cli.py``).
+#: (5 s: 0.088, 0.037). The rows after a cut still differ from those of a run through it: the
+#: state carried in differs by little, but on some runoff frames the lines found and the twist
+#: map's decisions turn that into other angles (the 60 s HD drive cut at 31.5 s: 47 frames of its
+#: next runoff, 39.5-41.7 s, up to 1.9 deg of yaw apart; the fused roll 0.082 deg RMS with the
+#: cut, 0.101 without).
+#: So where the video is cut depends on the video alone (:func:`piece_count`), never on the
+#: number of processes.
 WARM_UP_S = 3.0
+
+
+def piece_count(n_frames: int, fps: float, warm_up: int) -> int:
+    """Pieces a video of ``n_frames`` wanted frames at ``fps`` is cut into: a function of the
+    video alone, so that its table is the same whichever number of processes share the pieces
+    (the estimator's rows after a cut differ from those of a run through it: :data:`WARM_UP_S`).
+    :data:`PIECES_PER_MINUTE` per started minute, fewer where a piece would be shorter than
+    its warm-up and :data:`_MIN_PIECE`."""
+    by_length = PIECES_PER_MINUTE * max(1, math.ceil(n_frames / max(fps, 1e-9) / 60.0 - 1e-9))
+    return max(1, min(by_length, n_frames // (warm_up + _MIN_PIECE)))
 
 
 def _frames_from(src: FrameSource, start: int, luma: bool = False) -> Iterator[tuple[int, np.ndarray]]:
@@ -443,46 +466,40 @@ def _luma_frames(path: Path, start: int):
     return frames()
 
 
-def _estimate_piece(src: FrameSource, wanted: list[int], times: dict, setup, debug_video=None, debug_fps=30.0,
-                    tick=None, speeds: dict | None = None) -> tuple[list[dict], int]:
-    """Rows of the frames ``wanted`` (sorted, contiguous in the video), and how many frames of
-    the video were read (index of the last one + 1). ``speeds``: m/s per frame, for the
-    distance travelled between frames (:func:`_travel_m`)."""
+def _estimate_piece(src: FrameSource, wanted: list[int], times: dict, setup, writer=None, tick=None,
+                    speeds: dict | None = None, warm: int = 0) -> tuple[list[dict], int]:
+    """Rows of the frames ``wanted`` (sorted, contiguous in the video) but the first ``warm``
+    (the warm-up: estimated for the state they leave, not written to the debug ``writer`` nor
+    counted by ``tick``), and how many frames of the video were read (index of the last one +
+    1). A fresh estimator. ``speeds``: m/s per frame, for the distance travelled between frames
+    (:func:`_travel_m`)."""
     import time
 
-    from .debug import DebugWriter
-
     est = Estimator(*setup)
-    writer = DebugWriter(debug_video, debug_fps, setup[0]) if debug_video is not None else None
     rows, n_read, last_done = [], 0, None
     wanted_set, last = set(wanted), (wanted[-1] if wanted else -1)
-    try:
-        # the estimator's grey with a debug video too (it drew on OpenCV's colour frames, and
-        # the estimator got their grey, a few levels off the luma: another run, 7 of 10 KITTI
-        # frames valid against 2, a review); the debug video shows the grey the vision saw
-        for i, img in _frames_from(src, wanted[0] if wanted else 0, luma=True):
-            n_read = i + 1
-            if i > last:
-                break
-            if i not in wanted_set:
-                continue
-            travel = _travel_m(speeds, times, last_done, i)
-            last_done = i
-            t0 = time.perf_counter()
-            e = est.estimate(img, travel_m=travel, keep_debug=writer is not None)
-            ms = (time.perf_counter() - t0) * 1e3
-            rows.append(vision_row(times[i], i, e, ms))
-            if writer is not None:
-                writer.write(img, e, times[i])
-            if tick is not None:
-                tick(1)
-    except BaseException:
+    # the estimator's grey with a debug video too (it drew on OpenCV's colour frames, and the
+    # estimator got their grey, a few levels off the luma: another run, 7 of 10 KITTI frames
+    # valid against 2, a review); the debug video shows the grey the vision saw
+    for i, img in _frames_from(src, wanted[0] if wanted else 0, luma=True):
+        n_read = i + 1
+        if i > last:
+            break
+        if i not in wanted_set:
+            continue
+        travel = _travel_m(speeds, times, last_done, i)
+        last_done = i
+        t0 = time.perf_counter()
+        e = est.estimate(img, travel_m=travel, keep_debug=writer is not None)
+        ms = (time.perf_counter() - t0) * 1e3
+        rows.append(vision_row(times[i], i, e, ms))
+        if len(rows) <= warm:
+            continue
         if writer is not None:
-            writer.close(complete=False)
-        raise
-    if writer is not None:
-        writer.close()
-    return rows, n_read
+            writer.write(img, e, times[i])
+        if tick is not None:
+            tick(1)
+    return rows[warm:], n_read
 
 
 def _travel_m(speeds: dict | None, times: dict, before: int | None, frame: int) -> float | None:
@@ -493,17 +510,47 @@ def _travel_m(speeds: dict | None, times: dict, before: int | None, frame: int) 
     return travel_between(speeds.get(before, math.nan), speeds.get(frame, math.nan), times[frame] - times[before])
 
 
-def _piece_job(args):
-    src, piece, warm, times, setup, speeds = args
-    seen = [0]
+def _piece_jobs(src: FrameSource, wanted: list[int], times: dict, setup, speeds: dict | None, pieces: int,
+                warm_up: int) -> list[tuple]:
+    """One job per piece (:func:`_piece_starts`): the source, the piece's frames, the
+    ``warm_up`` frames before it, their times, the estimator's setup and their speeds."""
+    starts = _piece_starts(len(wanted), pieces, warm_up)
+    jobs = []
+    for k, end in zip(starts, starts[1:] + [len(wanted)]):
+        piece, warm = wanted[k:end], wanted[max(0, k - warm_up):k]
+        jobs.append((src, piece, warm, {i: times[i] for i in warm + piece}, setup,
+                     None if speeds is None else {i: speeds.get(i, math.nan) for i in warm + piece}))
+    return jobs
 
-    def tick(n: int) -> None:           # the warm-up frames do not count as done
-        seen[0] += n
-        if seen[0] > len(warm):
-            _tick_shared(n)
 
-    rows, n_read = _estimate_piece(src, warm + piece, times, setup, tick=tick, speeds=speeds)
-    return rows[len(warm):], n_read
+def _run_job(job, writer=None, tick=None) -> tuple[list[dict], int]:
+    src, piece, warm, times, setup, speeds = job
+    return _estimate_piece(src, warm + piece, times, setup, writer=writer, tick=tick, speeds=speeds, warm=len(warm))
+
+
+def _estimate_pieces_here(jobs: list[tuple], tick, debug_video=None, debug_fps: float = 30.0) -> tuple[list[dict], int]:
+    """The pieces one after the other in this process (each from its own warm-up, as a worker
+    would: the same rows), the debug video written across them in frame order."""
+    from .debug import DebugWriter
+
+    writer = DebugWriter(debug_video, debug_fps, jobs[0][4][0]) if debug_video is not None and jobs else None
+    rows, n_read = [], 0
+    try:
+        for job in jobs:
+            piece_rows, n = _run_job(job, writer, tick)
+            rows += piece_rows
+            n_read = max(n_read, n)
+    except BaseException:
+        if writer is not None:
+            writer.close(complete=False)
+        raise
+    if writer is not None:
+        writer.close()
+    return rows, n_read
+
+
+def _piece_job(job):
+    return _run_job(job, tick=_tick_shared)
 
 
 _COUNTER = None  # shared frame counter of the pool's processes (set by _init_worker)
@@ -521,16 +568,16 @@ def _tick_shared(n: int) -> None:
         _COUNTER.value += n
 
 
-def _piece_starts(n_frames: int, workers: int, warm: int) -> list[int]:
-    """First frame (index into the wanted frames) of each worker's piece. Every piece but the
-    first also estimates ``warm`` frames before it, so those pieces are shorter by as much:
-    each worker then estimates the same number of frames and none finishes last by its warm-up
+def _piece_starts(n_frames: int, pieces: int, warm: int) -> list[int]:
+    """First frame (index into the wanted frames) of each piece. Every piece but the first
+    also estimates ``warm`` frames before it, so those pieces are shorter by as much: each
+    piece then costs the same number of frames and no worker finishes last by its warm-up
     (equal pieces when they would be too short for that)."""
-    if (n_frames + (workers - 1) * warm) // workers - warm < _MIN_PIECE // 2:
+    if (n_frames + (pieces - 1) * warm) // pieces - warm < _MIN_PIECE // 2:
         warm = 0
-    work, extra = divmod(n_frames + (workers - 1) * warm, workers)
+    work, extra = divmod(n_frames + (pieces - 1) * warm, pieces)
     starts = [0]
-    for k in range(workers - 1):
+    for k in range(pieces - 1):
         starts.append(starts[-1] + work + (k < extra) - (warm if k > 0 else 0))
     return [s for s in starts if s < n_frames]
 
@@ -547,22 +594,12 @@ def warm_up_frames(fps: float) -> int:
     return int(math.ceil(WARM_UP_S * fps))
 
 
-def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, workers: int, tick,
-                       speeds: dict | None = None, warm_up: int = 90, while_waiting=None):
-    """:func:`_estimate_piece` over one contiguous piece per worker in a process pool. Each
-    piece but the first starts ``warm_up`` frames early (:data:`WARM_UP_S`) and drops those
-    rows: the estimator carries state from frame to frame (the vertical curvature's prior, the
-    search's seed, the road's twist map), so the rows after the warm-up are those of a single
-    run through the video."""
+def _estimate_parallel(jobs: list[tuple], n_wanted: int, workers: int, tick, while_waiting=None):
+    """:func:`_run_job` over the pieces in a pool of ``workers`` processes: the rows of
+    :func:`_estimate_pieces_here`, each piece from its own warm-up (:data:`WARM_UP_S`)."""
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    starts = _piece_starts(len(wanted), workers, warm_up)
-    jobs = []
-    for k, end in zip(starts, starts[1:] + [len(wanted)]):
-        piece, warm = wanted[k:end], wanted[max(0, k - warm_up):k]
-        jobs.append((src, piece, warm, {i: times[i] for i in warm + piece}, setup,
-                     None if speeds is None else {i: speeds.get(i, math.nan) for i in warm + piece}))
     ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
     if ctx.get_start_method() == "fork":
         # numba's first call in a process sets up its compiler target (0.3-0.4 s here, importing
@@ -571,7 +608,7 @@ def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, 
         start_numba()
     counter = ctx.Value("q", 0)
     shown = 0
-    with ProcessPoolExecutor(max_workers=len(jobs), mp_context=ctx, initializer=_init_worker,
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx, initializer=_init_worker,
                              initargs=(counter,)) as pool:
         futures = [pool.submit(_piece_job, j) for j in jobs]
         if while_waiting is not None:   # the workers are forked by now: this process is free
@@ -579,11 +616,11 @@ def _estimate_parallel(src: FrameSource, wanted: list[int], times: dict, setup, 
         pending = set(futures)
         while pending:
             _, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
-            done_frames = min(counter.value, len(wanted))
+            done_frames = min(counter.value, n_wanted)
             tick(done_frames - shown)
             shown = done_frames
         results = [f.result() for f in futures]
-    tick(len(wanted) - shown)
+    tick(n_wanted - shown)
     rows = [r for piece_rows, _ in results for r in piece_rows]
     # a piece past the end of the video reads nothing; the last frame read is the video's
     return rows, max(n for _, n in results)

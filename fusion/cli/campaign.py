@@ -48,7 +48,8 @@ def add_parser(sub) -> None:
     p.add_argument("--no-carry", action="store_true", help="run every drive on its own (no calibration carried)")
     p.add_argument("--smooth", action="store_true", help="forward filter plus RTS smoother (offline)")
     p.add_argument("--no-report", action="store_true", help="skip the per-drive plots and HTML")
-    p.add_argument("--workers", type=workers_arg, default=None, help="vision processes (default: the cores available)")
+    p.add_argument("--workers", type=workers_arg, default=None,
+                   help="vision processes (default: the cores available; the tables do not depend on it)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 

@@ -42,7 +42,8 @@ def add_parser(sub) -> None:
     p.add_argument("--debug-video", type=Path, help="also write the vision debug video here")
     p.add_argument("--no-report", action="store_true", help="skip the plots and report.html (report/summary.json is written)")
     p.add_argument("--workers", type=workers_arg, default=None,
-                   help="processes for the vision (default: the cores available; 1 with --debug-video)")
+                   help="processes for the vision (default: the cores available; 1 with --debug-video); "
+                        "the tables do not depend on it")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
     p.set_defaults(func=run)

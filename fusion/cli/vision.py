@@ -38,7 +38,8 @@ def add_parser(sub) -> None:
     p.add_argument("--preset", choices=("default", "paper", "damon2018"), default=None,
                    help="start from these options instead of the config's [vision] preset")
     p.add_argument("--workers", type=workers_arg, default=None,
-                   help="processes for the vision (default: the cores available; 1 with --debug-video)")
+                   help="processes for the vision (default: the cores available; 1 with --debug-video); "
+                        "the tables do not depend on it")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
