@@ -129,6 +129,7 @@ class _ImuSample:
     x_post: np.ndarray = None
     P_post: np.ndarray = None
     gyro_dot: np.ndarray = None
+    gyro_dot_dt: float = math.inf  # the interval gyro_dot was differenced over (inf: not differenced)
     refused: tuple = (0, 0)  # this sample's speed and gravity updates refused, as counted (_tally)
     roll_prop: float = 0.0
     applied: tuple = ()   # measurements applied in the interval ending here (for replays)
@@ -361,7 +362,7 @@ class FusionStream:
         prev = prev if prev is not None else (self._hist[-1] if self._hist else None)
         if prev is None:
             self._init_from_accel(s)
-            s.gyro_dot = np.zeros(3)
+            s.gyro_dot, s.gyro_dot_dt = np.zeros(3), math.inf
             if self.record and self.start is not None:
                 # a restart (restart()): a step whose Jacobian is zero, so that the smoother's
                 # gain is zero across it and each side is smoothed on its own
@@ -378,7 +379,8 @@ class FusionStream:
                 self._propagate(t0, tv, (g0 + g_v) / 2, imu_index=-1)
                 self._vision_update(v, id(v) in new)
                 t0, g0 = tv, g_v
-            s.gyro_dot = (s.gyro - prev.gyro) / (s.t - prev.t)
+            s.gyro_dot_dt = s.t - prev.t
+            s.gyro_dot = (s.gyro - prev.gyro) / s.gyro_dot_dt
             if self._speed_initialized and self._speed_rejected_in_row < self.options.reacquire_after_rejections:
                 # the usual case: propagation, speed and gravity updates in one compiled call
                 self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index, sample=s)
@@ -405,7 +407,8 @@ class FusionStream:
         first one)."""
         speed_refused = self._speed_update(s.speed, s) if s.speed_fresh else False
         gravity_refused = (self._speed_initialized and s.index % self.options.gravity_every == 0
-                           and not self.ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate, s.r_scale))
+                           and not self.ekf.update_gravity(s.accel, s.gyro, s.gyro_dot, self._road_rate, s.r_scale,
+                                                           s.gyro_dot_dt))
         self._tally(s, speed_refused, gravity_refused)
 
     def _tally(self, s: _ImuSample, speed_refused: bool, gravity_refused: bool) -> None:
@@ -440,7 +443,7 @@ class FusionStream:
             gravity = sample.index % self.options.gravity_every == 0
             self._road_rate, ok_v, ok_g = ekf.propagate_and_update(
                 u, sample.speed if sample.speed_fresh else math.nan, sample.accel, sample.gyro, sample.gyro_dot,
-                gravity, sample.r_scale)
+                gravity, sample.r_scale, sample.gyro_dot_dt)
             if sample.speed_fresh:
                 self._speed_rejected_in_row = 0 if ok_v else self._speed_rejected_in_row + 1
             self._tally(sample, sample.speed_fresh and not ok_v, not ok_g)
