@@ -174,7 +174,11 @@ same equation holds for a car, whose body follows the road (``f_y`` then carries
 (The compiled model, :meth:`AttitudeEKF.specific_force_model`, writes the velocity along the
 road, whose frame turns with the heading, bank and grade rates: in a vertical curve the path's
 vertical acceleration ``v d(grade)/dt`` is then in it, 0.57 m/s^2 on the hill drive's sag,
-which with the grade's rate left out was read as attitude.)
+which with the grade's rate left out was read as attitude.) The rates and the angular
+acceleration ``w'`` (differenced from consecutive gyro samples) are inputs, so the gyro's
+white noise is in the prediction: its covariance (:func:`rate_noise_cov`) joins the
+accelerometer's, all of it in the gate, the part that accumulates over samples (the rates'
+own; the differenced part telescopes) in the update.
 
 Noise is given as 1-sigma values in natural units (:class:`NoiseModel`); the filter squares them.
 """
@@ -193,7 +197,8 @@ from scipy.stats import chi2
 from vision.frames import R_from_rpy_scalar, rpy_from_R_scalar, so3_exp_scalar, wrap_angle
 
 __all__ = ["S", "DIM_X", "NoiseModel", "ImuStep", "RollAhead", "AttitudeEKF", "GRAVITY_M_S2",
-           "relative_attitude", "relative_outputs", "road_ahead_as_seen", "twist_response_effect", "vision_hx",
+           "rate_noise_cov", "relative_attitude", "relative_outputs", "road_ahead_as_seen", "twist_response_effect",
+           "vision_hx",
            "vision_jacobian"]
 
 GRAVITY_M_S2 = 9.80665

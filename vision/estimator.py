@@ -462,7 +462,9 @@ class Estimator:
         seed_rpy = _seed_rpy(seed)
         if own_seed and self._before_last is not None and seed_rpy is not None:
             # The last two frames in a row were valid: start from their extrapolation (constant
-            # rate). A better start only saves a second warp; the estimate does not depend on it.
+            # rate). A better start only saves a second warp on steady road; in a runoff the
+            # previous estimates (this start, and the seed's vertical-curvature prior) move some
+            # frames' pitch and yaw by 0.01-0.1 deg (docs/fusion-notes.md, eleventh session).
             prev = _seed_rpy(self._before_last)
             seed_rpy = tuple(2.0 * a - b for a, b in zip(seed_rpy, prev))
         gray, why = _gray(image)
