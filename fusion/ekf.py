@@ -1371,7 +1371,8 @@ def rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt):  # pragma: no cove
       (J_a / dt)^T)``, is what one sample's innovation carries: the gate's;
     * ``white``, ``gyro_var J_w J_w^T``, is what accumulates over samples: the differenced part
       telescopes (its sum over samples ``k..m`` is ``J_a (n_m - n_k-1) / dt``), so it adds
-      nothing to the average the filter takes of many samples: the update's.
+      almost nothing to an average over many samples whose weights change slowly from one to
+      the next, which is what the filter takes of them: the update's.
 
     ``H`` is :func:`_specific_force`'s Jacobian, whose gyro-bias columns are minus the path's
     ``d f / d w``. Without a pitch gyro its channel carries no noise (``q = r tan(roll)``).
