@@ -1337,16 +1337,31 @@ def _gated_update(x, P, y, H, R, gate):
     PHT = _mmt(P, H)
     Sm = _mm(H, PHT) + R
     SI = _inv_small(Sm)
+    d2 = _mahalanobis2(y, SI)
+    if not d2 <= gate:   # NaN rejects too
+        return False, d2, x, P, PHT, Sm, SI
+    K, x1, P1 = _kalman_step(x, P, y, PHT, SI)
+    return True, d2, x1, P1, K, Sm, SI
+
+
+@nb.njit(cache=True)
+def _mahalanobis2(y, SI):
+    """``y^T S^-1 y``."""
     SIy = _mv(SI, y)
     d2 = 0.0
     for i in range(y.size):
         d2 += y[i] * SIy[i]
-    if not d2 <= gate:   # NaN rejects too
-        return False, d2, x, P, PHT, Sm, SI
+    return d2
+
+
+@nb.njit(cache=True)
+def _kalman_step(x, P, y, PHT, SI):
+    """The update by residual ``y`` given ``P H^T`` and ``S^-1``: ``(K, x, P)``, ``P``
+    symmetrised."""
     K = _mm(PHT, SI)
     x1 = x + _mv(K, y)
     P1 = P - _mmt(K, PHT)
-    return True, d2, x1, (P1 + P1.T) * 0.5, K, Sm, SI
+    return K, x1, (P1 + P1.T) * 0.5
 
 
 @nb.njit(cache=True)
@@ -1420,17 +1435,15 @@ def _gravity_update(x, P, z, gyro, gyro_dot, rho, road_rate, has_q, R, gate, gyr
     white, full = rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt)
     PHT = _mmt(P, H)
     S0 = _mm(H, PHT)
-    SI = _inv_small(S0 + R + full)
-    SIy = _mv(SI, y)
-    d2 = y[0] * SIy[0] + y[1] * SIy[1] + y[2] * SIy[2]
-    if not d2 <= gate:
-        return False, d2, x, P, y, PHT, S0 + R + full, SI
+    S_gate = S0 + R + full
+    SI = _inv_small(S_gate)
+    d2 = _mahalanobis2(y, SI)
+    if not d2 <= gate:   # NaN rejects too
+        return False, d2, x, P, y, PHT, S_gate, SI
     Sm = S0 + R + white
     SI = _inv_small(Sm)
-    K = _mm(PHT, SI)
-    x1 = x + _mv(K, y)
-    P1 = P - _mmt(K, PHT)
-    return True, d2, x1, (P1 + P1.T) * 0.5, y, K, Sm, SI
+    K, x1, P1 = _kalman_step(x, P, y, PHT, SI)
+    return True, d2, x1, P1, y, K, Sm, SI
 
 
 @nb.njit(cache=True)
