@@ -106,6 +106,11 @@ class VisionEstimate:
     roll_sigma_rad, pitch_sigma_rad, yaw_sigma_rad : float
         1-sigma, first-order propagation of the edge and vanishing-point errors (from the fit
         residuals) through eqs. (8)/(10) and (17)/(20); see :mod:`vision.roll`, :mod:`vision.vanishing`.
+        Where the pose was solved with the vertical curvature held, also the error that leaves:
+        held for want of significance, the fit's own estimate of it and its variance through
+        the lane parameters (:meth:`LaneModel.zeta_consider_cov`); held because the pose was far
+        (a frame without a seed) while the last lane fit took it free, the pose step that fit
+        would still take (a first frame on a banked curve: 0.28 deg of pitch, 0.9 of yaw).
     valid : bool
         False when the frame gave no trustworthy estimate; ``reason`` says why.
     curvature_1_m : float
@@ -770,6 +775,7 @@ class Estimator:
         axis = np.array(twist0, float) if use_twist and twist0 else None
         tw = None
         iterations = 0
+        held_last = False              # the last pose update held zeta where it was
         if o.refine_iterations == 0:
             # ---- the paper's single pass: roll in this BEV, vanishing point of image lines ----
             vs = self._bev_cross_rows(lines)
@@ -791,7 +797,6 @@ class Estimator:
                 return VisionEstimate.invalid("the lines do not overlap along the road", o.method, debug=dbg)
         else:
             step = math.inf
-            held_last = False              # the last pose update held zeta where it was
             for it in range(o.refine_iterations):
                 iterations = it + 1
                 H, x0 = self.surface_of(phi, theta, psi)
@@ -810,8 +815,8 @@ class Estimator:
                     # polynomials do not follow (a 1/x term), which zeta would take up: where
                     # the step with zeta held is large, zeta stays where it is. (After a step
                     # under that size the pose is near: the check is skipped, 0.7 ms a frame.)
-                    held = model.with_dzeta_prior(0.0, 1e-9)
-                    dheld = held if o.vp == "tangent" else dmodel.with_dzeta_prior(0.0, 1e-9)
+                    held = model.held_at(0.0)
+                    dheld = held if o.vp == "tangent" else dmodel.held_at(0.0)
                     upd = self._pose_update(held, dheld, R, H, x0, zeta, use_eq10, ratio)
                     held_last = not (isinstance(upd, str) or max(abs(upd[0]), abs(upd[1] - psi),
                                                                  abs(upd[2] - theta)) <= _ZETA_POSE_STEP_RAD)
@@ -864,6 +869,15 @@ class Estimator:
         dir_rows = _direction_rows(model, H, x_c, _R_o_from_cp(phi, theta, psi))
         J_vehicle = _vehicle_jacobian(float(phi), float(theta), float(psi), self.mount.tilt_rad)
         cov_cam = self._camera_covariance(model, roll_rows, dir_rows, sig_f)
+        if held_last and model.zeta_hold is None and model.i_dzeta >= 0 and model.dzeta != 0.0:
+            # The pose was solved with zeta held (far from it), the lanes refitted with it free:
+            # the step that fit would still take is an error of the pose the fit's covariance
+            # does not hold.
+            H1, x1 = self.surface_of(phi, theta, psi)
+            upd = self._pose_update(model, model, _R_o_from_cp(phi, theta, psi), H1, x1, zeta, use_eq10, ratio)
+            if not isinstance(upd, str):
+                d = np.array([-upd[0], upd[2] - theta, upd[1] - psi])
+                cov_cam = cov_cam + np.outer(d, d)
         s_roll, s_pitch, s_yaw = _vehicle_sigmas(J_vehicle, cov_cam)
         s_roll, s_pitch, s_yaw = (math.hypot(s, m) for s, m in zip((s_roll, s_pitch, s_yaw), _ANGLE_MODEL_SIGMA_RAD))
         # Curvature, lateral offset, spacing at the contact point, from the outermost lines used.
@@ -1060,7 +1074,7 @@ class Estimator:
                 # Not significant: the road is taken as its tangent plane (the fit conditioned on
                 # zeta = 0); a free zeta would only add its noise to pitch and yaw.
                 free_sigma = model.sigma_dzeta
-                model = model.with_dzeta_prior(-z, 1e-9)
+                model = model.held_at(-z)
                 model.zeta_free_sigma = free_sigma
         return model
 
@@ -1197,6 +1211,10 @@ class Estimator:
         Jc = np.stack([row_phi, dir_rows[1], dir_rows[0]])       # phi, theta, psi
         cov = Jc @ model.cov @ Jc.T
         cov[0, 0] += sig_f**2
+        held = model.zeta_consider_cov()
+        if held is not None:
+            # zeta held: the error that leaves in it moves the pose as it moves the parameters
+            cov += Jc @ held @ Jc.T
         return cov
 
     @staticmethod

@@ -83,6 +83,10 @@ class LaneModel:
     sag: tuple | None = None
     #: 1-sigma of ``zeta`` before it was set to 0 for want of significance (NaN: it was not).
     zeta_free_sigma: float = math.nan
+    #: Where ``dzeta`` was held (:meth:`held_at`; None where not): ``zeta`` (1/m, the
+    #: projection's plus ``dzeta``) and its 1-sigma as the fit found them, and the parameters'
+    #: change per 1/m of ``dzeta`` in that fit.
+    zeta_hold: tuple | None = None
     #: The fit's points and second-pass weights, vertical-curvature column and inverse normal
     #: matrix, for :meth:`linear_response` (None: not from :func:`fit_lane_model_points`).
     linear: tuple | None = None
@@ -123,6 +127,27 @@ class LaneModel:
         out.a, out.b, out.c, out.dzeta, out.cov = p[:K], p[K:K + J], p[K + J:K + J + nc], float(p[i]), cov
         out.prior_gains = self.prior_gains + ((i, g),)
         return out
+
+    def held_at(self, dzeta_1_m: float) -> "LaneModel":
+        """The model with ``dzeta`` held at ``dzeta_1_m`` (a prior of 1e-9 1/m), remembering
+        what the fit said of it in :attr:`zeta_hold` (the first hold's, when held again)."""
+        i = self.i_dzeta
+        out = self.with_dzeta_prior(dzeta_1_m, 1e-9)
+        if i >= 0 and self.zeta_hold is None and out is not self:
+            var = float(self.cov[i, i])
+            gain = self.cov[:, i] / var if var > 0.0 else np.zeros(self.cov.shape[0])
+            out.zeta_hold = (float(self.sag[2]) + self.dzeta, math.sqrt(max(var, 0.0)), gain)
+        return out
+
+    def zeta_consider_cov(self) -> np.ndarray | None:
+        """What holding ``dzeta`` took out of the parameters' covariance (a Schmidt "consider"
+        term): ``g g^T ((zeta_free - zeta_held)^2 + sigma_free^2)``, ``g`` the parameters' change
+        per 1/m of ``dzeta`` in the free fit. None where it was not held."""
+        if self.zeta_hold is None:
+            return None
+        free, sigma, gain = self.zeta_hold
+        held = float(self.sag[2]) + self.dzeta
+        return np.outer(gain, gain) * ((free - held) ** 2 + sigma ** 2)
 
     def linear_response(self, dy: np.ndarray, priors: bool = True) -> np.ndarray:
         """Change of the parameters ``[a, b, c, dzeta]`` when the fit's points (``linear[0:2]``,
