@@ -276,8 +276,8 @@ _ZETA_POSE_STEP_RAD = math.radians(0.1)
 #: A frame without a seed starts from the mount's pose; on a banked curve its steps stay over
 #: :data:`_ZETA_POSE_STEP_RAD` for the ``refine_iterations`` passes, its pose solved with the
 #: vertical curvature held at 0: the left-hand 5 deg HD curve's frames 0.28 deg off in pitch and
-#: 0.7-0.9 in yaw. While the last pass held it, up to this many passes more (there: 0.01 and
-#: 0.04-0.08 deg). Frames with a seed keep ``refine_iterations``: in superelevation runoffs the
+#: 0.7-0.9 in yaw. While the last pass held it, up to this many passes more (there: 0.007-0.019
+#: and 0.02-0.27 deg). Frames with a seed keep ``refine_iterations``: in superelevation runoffs the
 #: curvature freed by more passes takes up the road's twist (tried on every frame: the HD
 #: drives' vision yaw 0.131 -> 0.196 deg on the left-hand drive, 0.336 -> 0.284 on the right).
 UNSEEDED_EXTRA_PASSES = 2
@@ -1090,9 +1090,8 @@ class Estimator:
             if abs(z + model.dzeta) < t * model.sigma_dzeta:
                 # Not significant: the road is taken as its tangent plane (the fit conditioned on
                 # zeta = 0); a free zeta would only add its noise to pitch and yaw.
-                free_sigma = model.sigma_dzeta
                 model = model.held_at(-z)
-                model.zeta_free_sigma = free_sigma
+                model.zeta_free_sigma = model.zeta_hold[1]
         return model
 
     @staticmethod
