@@ -883,15 +883,15 @@ class Estimator:
             sig_f = o.marker_width_tolerance_m / H * math.hypot(1.0, ratio)
         # first-order rows shared by the covariance, the road twist and the twist response
         roll_rows = _roll_rows(model, x_rows, use_eq10, ratio, heights, x_c)
-        dir_rows = _direction_rows(model, H, x_c, _R_o_from_cp(phi, theta, psi))
+        R_cp = _R_o_from_cp(phi, theta, psi)
+        dir_rows = _direction_rows(model, H, x_c, R_cp)
         J_vehicle = _vehicle_jacobian(float(phi), float(theta), float(psi), self.mount.tilt_rad)
         cov_cam = self._camera_covariance(model, roll_rows, dir_rows, sig_f)
         if held_last and model.zeta_hold is None and model.i_dzeta >= 0 and model.dzeta != 0.0:
             # The pose was solved with zeta held (far from it), the lanes refitted with it free:
             # the step that fit would still take is an error of the pose the fit's covariance
             # does not hold.
-            H1, x1 = self.surface_of(phi, theta, psi)
-            upd = self._pose_update(model, model, _R_o_from_cp(phi, theta, psi), H1, x1, zeta, use_eq10, ratio)
+            upd = self._pose_update(model, model, R_cp, H, x_c, zeta, use_eq10, ratio)
             if not isinstance(upd, str):
                 d = np.array([-upd[0], upd[2] - theta, upd[1] - psi])
                 cov_cam = cov_cam + np.outer(d, d)
@@ -962,7 +962,7 @@ class Estimator:
                                 o.marker_width_tolerance_m, rms_px)
         if dbg is not None:
             dbg.vp_px = (float(vp[0]), float(vp[1]))
-            dbg.R_o_from_cp = _R_o_from_cp(phi, theta, psi)
+            dbg.R_o_from_cp = R_cp
             dbg.height_m = H
             dbg.model = model
         reason = ""
