@@ -11,7 +11,7 @@ import itertools
 import math
 import os
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Callable, Iterable, Iterator, NamedTuple
 
 import cv2
 import numba as nb
@@ -510,30 +510,43 @@ def _travel_m(speeds: dict | None, times: dict, before: int | None, frame: int) 
     return travel_between(speeds.get(before, math.nan), speeds.get(frame, math.nan), times[frame] - times[before])
 
 
+class _PieceJob(NamedTuple):
+    """One piece of a video for :func:`_run_job`: the source, the piece's frames, the warm-up
+    frames before it, their times, the estimator's setup (camera, mount, road, options) and
+    their speeds (None: no map of the road's twist)."""
+
+    src: FrameSource
+    piece: list
+    warm: list
+    times: dict
+    setup: tuple
+    speeds: dict | None
+
+
 def _piece_jobs(src: FrameSource, wanted: list[int], times: dict, setup, speeds: dict | None, pieces: int,
-                warm_up: int) -> list[tuple]:
-    """One job per piece (:func:`_piece_starts`): the source, the piece's frames, the
-    ``warm_up`` frames before it, their times, the estimator's setup and their speeds."""
+                warm_up: int) -> list[_PieceJob]:
+    """One job per piece (:func:`_piece_starts`), each with the ``warm_up`` frames before it."""
     starts = _piece_starts(len(wanted), pieces, warm_up)
     jobs = []
     for k, end in zip(starts, starts[1:] + [len(wanted)]):
         piece, warm = wanted[k:end], wanted[max(0, k - warm_up):k]
-        jobs.append((src, piece, warm, {i: times[i] for i in warm + piece}, setup,
-                     None if speeds is None else {i: speeds.get(i, math.nan) for i in warm + piece}))
+        jobs.append(_PieceJob(src, piece, warm, {i: times[i] for i in warm + piece}, setup,
+                              None if speeds is None else {i: speeds.get(i, math.nan) for i in warm + piece}))
     return jobs
 
 
-def _run_job(job, writer=None, tick=None) -> tuple[list[dict], int]:
-    src, piece, warm, times, setup, speeds = job
-    return _estimate_piece(src, warm + piece, times, setup, writer=writer, tick=tick, speeds=speeds, warm=len(warm))
+def _run_job(job: _PieceJob, writer=None, tick=None) -> tuple[list[dict], int]:
+    return _estimate_piece(job.src, job.warm + job.piece, job.times, job.setup, writer=writer, tick=tick,
+                           speeds=job.speeds, warm=len(job.warm))
 
 
-def _estimate_pieces_here(jobs: list[tuple], tick, debug_video=None, debug_fps: float = 30.0) -> tuple[list[dict], int]:
+def _estimate_pieces_here(jobs: list[_PieceJob], tick, debug_video=None,
+                          debug_fps: float = 30.0) -> tuple[list[dict], int]:
     """The pieces one after the other in this process (each from its own warm-up, as a worker
     would: the same rows), the debug video written across them in frame order."""
     from .debug import DebugWriter
 
-    writer = DebugWriter(debug_video, debug_fps, jobs[0][4][0]) if debug_video is not None and jobs else None
+    writer = DebugWriter(debug_video, debug_fps, jobs[0].setup[0]) if debug_video is not None and jobs else None
     rows, n_read = [], 0
     try:
         for job in jobs:
@@ -594,7 +607,7 @@ def warm_up_frames(fps: float) -> int:
     return int(math.ceil(WARM_UP_S * fps))
 
 
-def _estimate_parallel(jobs: list[tuple], n_wanted: int, workers: int, tick, while_waiting=None):
+def _estimate_parallel(jobs: list[_PieceJob], n_wanted: int, workers: int, tick, while_waiting=None):
     """:func:`_run_job` over the pieces in a pool of ``workers`` processes: the rows of
     :func:`_estimate_pieces_here`, each piece from its own warm-up (:data:`WARM_UP_S`)."""
     import multiprocessing
