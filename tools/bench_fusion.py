@@ -69,15 +69,21 @@ SAMPLE = "sample_banked_curve"
 BARS = {"roll": 0.15, "pitch": 0.15, "yaw": 0.1, "bank": 0.3}
 
 
+def drive_key(scenario: bytes) -> str:
+    """Cache key of a rendered drive: its scenario (file bytes, and whatever varies it) and the
+    simulator modules that decide the drive's video, CAN log and truth."""
+    h = hashlib.sha256(scenario)
+    for f in ("road.py", "trajectory.py", "render.py", "imu_model.py", "canlog.py", "drive.py", "scenario.py"):
+        h.update((ROOT / "tools" / "drivesim" / f).read_bytes())
+    return h.hexdigest()[:12]
+
+
 def cached_full_drive(name: str) -> Path:
     from drivesim.drive import simulate
     from drivesim.scenario import load_scenario
 
     path = SCENARIOS / f"{name}.toml"
-    h = hashlib.sha256(path.read_bytes())
-    for f in ("road.py", "trajectory.py", "render.py", "imu_model.py", "canlog.py", "drive.py", "scenario.py"):
-        h.update((ROOT / "tools" / "drivesim" / f).read_bytes())
-    folder = CACHE / f"full-{name}-{h.hexdigest()[:12]}"
+    folder = CACHE / f"full-{name}-{drive_key(path.read_bytes())}"
     if not (folder / "config.toml").exists():
         simulate(load_scenario(path), folder, overwrite=True)
     return folder

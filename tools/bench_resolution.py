@@ -22,7 +22,6 @@ filter; vision alone) and the share of samples whose NEES lies in its 95 % band,
 from __future__ import annotations
 
 import argparse
-import hashlib
 import sys
 import tomllib
 from pathlib import Path
@@ -60,10 +59,7 @@ def rendered_drive(name: str, size: tuple[int, int] | None, seed_offset: int) ->
     data["camera"]["width"], data["camera"]["height"] = w, h
     data["scenario"]["seed"] = seed
     data["scenario"]["name"] = f"{data['scenario']['name']}_{w}x{h}"
-    key = hashlib.sha256(path.read_bytes() + f"{w}x{h}s{seed}".encode())
-    for f in ("road.py", "trajectory.py", "render.py", "imu_model.py", "canlog.py", "drive.py", "scenario.py"):
-        key.update((B.ROOT / "tools" / "drivesim" / f).read_bytes())
-    folder = B.CACHE / f"res-{name}-{w}x{h}-s{seed}-{key.hexdigest()[:12]}"
+    folder = B.CACHE / f"res-{name}-{w}x{h}-s{seed}-{B.drive_key(path.read_bytes() + f'{w}x{h}s{seed}'.encode())}"
     if not (folder / "config.toml").exists():
         print(f"rendering {name} at {w}x{h}, seed {seed} ...", flush=True)
         simulate(parse_scenario(data, str(path)), folder, overwrite=True, progress=False)
