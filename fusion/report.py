@@ -68,7 +68,10 @@ def summarise(r: ReportInputs) -> dict:
     """Numbers of the report: RMSE per source against truth, consistency, counts, timings."""
     out: dict = {"title": r.title, "smoothed": r.smoothed, "counts": r.counts, "timings_s": r.timings_s,
                  "time_offset": r.time_offset, "warnings": r.warnings,
-                 "camera_time_offset_s": r.camera_time_offset_s}
+                 "camera_time_offset_s": r.camera_time_offset_s,
+                 # present in every summary, null where there is none (no truth, too short a truth,
+                 # biases that ended non-finite): a reader need not tell a missing key from a null
+                 "imu_calibration": None, "rmse_deg": None, "consistency": None}
     f = r.fused
     out["samples"] = int(len(f))
     if r.imu_calibration is not None:

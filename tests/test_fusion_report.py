@@ -143,3 +143,18 @@ def test_truth_headings_are_interpolated_the_short_way_round():
     assert np.max(np.abs((got["yaw_deg"] - want + 180.0) % 360.0 - 180.0)) < 1e-9
     assert got["roll_deg"].isna().all()          # a column of NaN stays NaN
     assert rmse_table(pd.DataFrame({"t_s": tf, "yaw_deg": want}), truth)["yaw"] < 1e-9
+
+
+def test_a_summary_without_truth_has_its_scores_null(drawn):
+    """The README promises ``null`` for a value that does not exist: without a truth the RMSE and
+    the NEES keys were left out while ``time_offset`` was null (a review). Every key is there,
+    the scores null; with the truth they are filled."""
+    import json
+    from dataclasses import replace
+
+    inputs = drawn["inputs"]
+    bare = json.loads(json.dumps(report.summarise(replace(inputs, truth=None))))
+    assert bare["rmse_deg"] is None and bare["consistency"] is None and bare["time_offset"] is None
+    scored = report.summarise(inputs)
+    assert set(scored) == set(bare)
+    assert 0.0 < scored["rmse_deg"]["fused"]["roll"] < 1.0 and 0.0 <= scored["consistency"]["fraction_inside"] <= 1.0

@@ -173,7 +173,7 @@ def _drive_row(fused, out: Path) -> dict:
         data = json.loads(summary.read_text())
         # the run's own warnings (no valid vision, an incomplete log, gaps...): 'ok' means it ran
         row["warnings"] = " | ".join(data.get("warnings") or [])
-        fusedrmse = data.get("rmse_deg", {}).get("fused", {})
+        fusedrmse = (data.get("rmse_deg") or {}).get("fused") or {}
         for a in ("roll", "pitch", "yaw", "bank"):
             if isinstance(fusedrmse.get(a), (int, float)) and math.isfinite(fusedrmse[a]):   # null: none
                 row[f"{a}_rmse_deg"] = fusedrmse[a]
