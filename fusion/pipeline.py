@@ -287,6 +287,10 @@ def last_speed(speed_t_s: np.ndarray, speed_m_s: np.ndarray, t_s, max_age_s: flo
 
 #: Frames further apart than this (lanes lost) leave the per-sample plain bank NaN between them, s.
 PLAIN_BANK_MAX_FRAME_GAP_S = 0.1
+#: A gap within this of the limit counts as at it (s): frame times are written to the
+#: microsecond, and epoch seconds in float64 resolve 2.4e-7 s, so three frames of a 30 fps camera
+#: came out 0.10000014 or 0.09999990 s apart and were split or bridged by the rounding (a review).
+_GAP_TOLERANCE_S = 1e-6
 
 
 def frames_to_samples(t_s: np.ndarray, frame_t_s: np.ndarray, values: np.ndarray,
@@ -302,7 +306,7 @@ def frames_to_samples(t_s: np.ndarray, frame_t_s: np.ndarray, values: np.ndarray
     k = np.clip(np.searchsorted(frame_t_s, t_s, side="right"), 1, len(frame_t_s) - 1)
     gap = frame_t_s[k] - frame_t_s[k - 1] if len(frame_t_s) > 1 else np.zeros(t_s.size)
     exact = np.isin(t_s, frame_t_s)
-    out[(gap > max_gap_s) & ~exact] = math.nan
+    out[(gap > max_gap_s + _GAP_TOLERANCE_S) & ~exact] = math.nan
     return out
 
 

@@ -246,6 +246,22 @@ def test_a_10_fps_camera_keeps_its_plain_bank_between_frames():
     assert np.all(np.isnan(v[inside]))
 
 
+def test_a_gap_at_the_limit_is_bridged_whichever_way_its_epoch_time_rounds():
+    """Three 30 fps frames apart is 0.1 s, the limit, as written; the epoch times' float64
+    rounding made some such gaps 0.10000014 s and others 0.09999990 s, and the first were left
+    NaN (the sample drive: 26 empty samples where 17 were expected, a review)."""
+    from fusion.pipeline import PLAIN_BANK_MAX_FRAME_GAP_S, frames_to_samples
+
+    frames = np.array([1700000005.6, 1700000005.7 + 1.4e-7, 1700000005.8 - 1.0e-7])
+    assert frames[1] - frames[0] > PLAIN_BANK_MAX_FRAME_GAP_S > frames[2] - frames[1]
+    t = np.linspace(frames[0], frames[-1], 41)
+    assert np.all(np.isfinite(frames_to_samples(t, frames, np.array([1.0, 2.0, 3.0]))))
+    # a gap a frame longer is still a loss
+    late = frames + np.array([0.0, 1.0 / 30.0, 1.0 / 30.0])
+    v = frames_to_samples(t, late, np.array([1.0, 2.0, 3.0]))
+    assert np.all(np.isnan(v[(t > late[0]) & (t < late[1])]))
+
+
 def test_an_imu_table_with_a_nan_time_is_refused(drive):
     """A NaN sample time passed the 'strictly increasing' check (a comparison with NaN is
     false): the forward table got a row with t_s NaN and the smoother a length error."""
