@@ -36,7 +36,8 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, help="output table: .parquet or .csv")
     p.add_argument("--dbc", default=None, help="DBC to use instead of [can] dbc")
     p.add_argument("--partial", action="store_true",
-                   help="write the table even if the log breaks off (truncated file); it is marked incomplete")
+                   help="write the table even if the log breaks off (truncated file); it is marked incomplete "
+                        "(.parquet only: the mark is in its metadata)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

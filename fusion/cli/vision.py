@@ -27,7 +27,7 @@ def add_parser(sub) -> None:
     p.add_argument("--frames", type=Path, default=None,
                    help="frames.csv (frame,t_s); without it, times are [video] start_s + frame / fps")
     p.add_argument("--config", required=True, type=Path, help="config TOML ([camera], [mount], [road], [vision])")
-    p.add_argument("--out", required=True, type=Path, help="output CSV (written as OUT.partial, then renamed)")
+    p.add_argument("--out", required=True, type=Path, help="output table, .csv or .parquet (written under a temporary name, then renamed)")
     p.add_argument("--can", type=Path, default=None,
                    help="CAN log of the drive: the wheel speed gives the estimator the distance travelled per "
                    "frame (the road-twist map), as in vifusion run")
