@@ -1019,8 +1019,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
         the road frame's own rotation: heading rate about level z, grade rate about the road's
         level y, bank rate about road x). The Jacobian keeps the grade rate (the accelerometer
         sees a vertical curve's ``v d(grade)/dt``: synthetic hill drive pitch 0.095 -> 0.081 deg
-        with it) and takes the bank rate as known.
-        The Jacobian keeps the dominant terms (gravity, centripetal, speed, biases). Compiled
+        with it) and takes the bank rate as known. The attitude's columns turn the vehicle's
+        acceleration and gravity together with the body: at a steady lean ``d f_y / d roll = g /
+        cos(roll)``, not gravity's ``g cos(roll)`` alone; the road's angles, which reach the
+        model only through the velocity's small attitude relative to the road, are left out.
+        Compiled
         (:func:`_specific_force`): it runs for every IMU sample.
         """
         return _specific_force(self.x, np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float),
@@ -1075,8 +1078,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
 
 @nb.njit(cache=True)
-def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
-    """Specific-force model and Jacobian; see :meth:`AttitudeEKF.specific_force_model`."""
+def _specific_force_terms(x, gyro, gyro_dot, rho, road_rate, has_q):
+    """The specific-force model's value ``f`` (:meth:`AttitudeEKF.specific_force_model`) and the
+    terms its analytic Jacobian columns take: ``(f, (p, q, r), (sin, cos of the relative roll,
+    sin, cos of the relative pitch), (e, its rate, f less the lever arm and biases), (A, R),
+    (sin, cos) of pitch_w)``."""
     g = GRAVITY_M_S2
     phi, theta, v, a = x[0], x[1], x[8], x[9]
     sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
@@ -1113,11 +1119,21 @@ def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     f[0] = fx + wdy * rz - wdz * ry + q * cz - r * cy + x[11]
     f[1] = fy + wdz * rx - wdx * rz + r * cx - p * cz + x[12]
     f[2] = fz + wdx * ry - wdy * rx + p * cy - q * cx + x[13]
+    return f, (p, q, r), (so, co, sto, cto), (ex, ey, ez, fx, fy, fz), (A, R), (st, ct)
+
+
+@nb.njit(cache=True)
+def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
+    """Specific-force model and Jacobian; see :meth:`AttitudeEKF.specific_force_model`."""
+    g = GRAVITY_M_S2
+    f, (p, q, r), (so, co, sto, cto), (ex, ey, ez, fx, fy, fz), (A, R), (st, ct) = \
+        _specific_force_terms(x, gyro, gyro_dot, rho, road_rate, has_q)
+    v, a = x[8], x[9]
+    sf, cf = math.sin(x[0]), math.cos(x[0])
     # Jacobian. Rates enter through w x e and through de (the relative Euler rates):
     # df/dw = v (-[e]x + de/dtheta_o (0, cos, -sin) + de/dphi_o (1, tan sin, tan cos)); the
     # two cancel for a body pitching relative to its path, so a pitch-rate bias does not
-    # show in f_z. Gravity gives the attitude terms; e's own dependence on the relative
-    # angles is second order (times the small relative pitch) and left out.
+    # show in f_z. The angles' columns are below.
     tto = sto / cto
     t0, t1, t2 = -sto, cto * so, cto * co       # de/dtheta_o
     h0, h1, h2 = 0.0, sto * co, -sto * so      # de/dphi_o
@@ -1141,15 +1157,54 @@ def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     H[0, 15] = v * (-sto * d_th)
     H[1, 15] = v * (cto * d_th * so + sto * co * d_ph)
     H[2, 15] = v * (cto * d_th * co - sto * so * d_ph)
-    H[0, 1], H[1, 1], H[2, 1] = -g * ct, -g * st * sf, -g * st * cf
-    H[0, 0], H[1, 0], H[2, 0] = 0.0, g * ct * cf, -g * ct * sf
+    # the rates: v times J, and the lever arm's w x (w x rho) = w (w . rho) - rho |w|^2, whose
+    # derivative is (w . rho) I + w rho^T - 2 rho w^T (left out before: at 0.5 rad/s and 0.5 m
+    # up to 0.5 m/s^2 per rad/s, a review)
+    w3 = (p, q, r)
+    wr = p * rho[0] + q * rho[1] + r * rho[2]
+    M = np.empty((3, 3))
+    for i in range(3):
+        for k in range(3):
+            M[i, k] = v * J[i, k] + w3[i] * rho[k] - 2.0 * rho[i] * w3[k] + (wr if i == k else 0.0)
     for i in range(3):
         if has_q:
-            H[i, 5], H[i, 6], H[i, 7] = -v * J[i, 0], -v * J[i, 1], -v * J[i, 2]
-        else:  # q = r tan(phi) - x[6]: r carries q, and q depends on the roll
-            H[i, 5], H[i, 6] = -v * J[i, 0], -v * J[i, 1]
-            H[i, 7] = -v * (J[i, 2] + J[i, 1] * sf / cf)
-            H[i, 0] += v * J[i, 1] * r / (cf * cf)
+            H[i, 5], H[i, 6], H[i, 7] = -M[i, 0], -M[i, 1], -M[i, 2]
+        else:  # q = r tan(phi) - x[6]: r carries q
+            H[i, 5], H[i, 6] = -M[i, 0], -M[i, 1]
+            H[i, 7] = -(M[i, 2] + M[i, 1] * math.tan(x[0]))
+    # The attitude's columns: the vehicle's acceleration and gravity, (fx, fy, fz), are fixed in
+    # the level frame, and an attitude error turns all of it in the body: d f / d roll = f x
+    # e_x, d f / d pitch = f x (0, cos(roll), -sin(roll)) (the pitch turns about the level y
+    # axis, seen in the body). At a steady lean f = (0, 0, g / cos(roll)): d f_y / d roll = g /
+    # cos(roll), where gravity's part alone, g cos(roll) and -g sin(roll) in f_z, was the
+    # Jacobian before (at 45 deg of lean half the roll information of every update, a review's
+    # central differences, 2026-11-27). The lever arm's terms and the biases are the body's own
+    # and do not turn. The heading rate is not differentiated: from the body rates it would take
+    # the suspension's pitching at a lean for a turn of the path (the docstring's level-frame
+    # form, tried: it made the lateral accelerometer bias observable on a straight from the
+    # pitch oscillation, and the right-hand drive's bank went 0.18 -> 0.77 deg). The road's
+    # angles (yaw_rel, bank, grade) reach the model only through the velocity's small attitude
+    # relative to the road and are left out with it (their exact columns made the bank
+    # observable from the accelerometer without vision, where no sensor sees it). With a
+    # pitch gyro the measured rates are the path's turn plus the body's own motion on it, so
+    # the path's turn does not move with an attitude error; without one, below.
+    H[0, 0], H[1, 0], H[2, 0] = 0.0, fz, -fy
+    H[0, 1], H[1, 1], H[2, 1] = -fy * sf - fz * cf, fx * sf, fx * cf
+    if not has_q:
+        # Without a pitch gyro the rate the model takes for q is r tan(roll) - x[6], and the
+        # columns stay as they were: the roll's gravity's plus the one through q by the rates'
+        # Jacobian, the pitch's gravity's alone. This is not the model's whole derivative (at a
+        # steady 11 deg turn (9.22, -1.86) m/s^2 per rad in f_y, f_z against (9.61, 0.08),
+        # whose f_z part, g sin(roll) tan(roll)^2, comes from the heading rate r / cos(roll)
+        # turning with the roll), but with the whole one, or the turning above, the left-hand
+        # drive's bank went from 0.10 to 0.29-0.38 deg (test_pitching_without_a_pitch_gyro_
+        # does_not_bias_the_bank): the lateral accelerometer bias and the world roll, which the
+        # accelerometer cannot tell apart, then drift apart. Left as a finding (notes).
+        for i in range(3):
+            H[i, 0] = M[i, 1] * r / (cf * cf)
+        H[1, 0] += g * ct * cf
+        H[2, 0] -= g * ct * sf
+        H[0, 1], H[1, 1], H[2, 1] = -g * ct, -g * st * sf, -g * st * cf
     return f, H
 
 
