@@ -145,9 +145,11 @@ def read_truth(path: Path | None, columns: tuple[str, ...] = TRUTH_COLUMNS) -> p
 
 
 def _common_span(a_t: np.ndarray, b_t: np.ndarray) -> tuple[float, float] | None:
-    """The common span of two increasing time series, or None where they do not overlap."""
+    """The common span of two increasing time series, or None where they do not overlap (a
+    single time inside the other's span overlaps it: a one-frame drive was said to have no
+    overlap, a review)."""
     lo, hi = max(a_t[0], b_t[0]), min(a_t[-1], b_t[-1])
-    return (float(lo), float(hi)) if hi > lo else None
+    return (float(lo), float(hi)) if hi >= lo else None
 
 
 def check_truth_overlap(truth: pd.DataFrame, imu_t: np.ndarray, truth_name, log_name) -> None:

@@ -427,6 +427,40 @@ def test_out_folder_with_other_files_is_left_alone(tmp_path):
                             "--out", f / "drive", "--quiet"), "a file is in the way where a folder is needed")
 
 
+def test_a_users_files_in_the_report_folder_or_the_partial_folder_are_left_alone(tmp_path):
+    """--out's check looked at its top level only: a file of the user's in ``OUT/report/`` went
+    with the replaced folder, and so did an ``OUT.partial`` folder of theirs, which the run takes
+    for its own temporary folder (a review). Both are refused now, nothing deleted; a folder an
+    earlier run wrote (an interrupted write's ``NAME.partial`` included) is still replaced."""
+    out = tmp_path / "res"
+    (out / "report").mkdir(parents=True)
+    (out / "report" / "thesis.docx").write_text("x")
+    one_line_error(vifusion("run", "--out", out, "--quiet", "--no-report"), "report/thesis.docx")
+    assert (out / "report" / "thesis.docx").read_text() == "x"
+    (out / "report" / "thesis.docx").unlink()
+    (out / "report" / "summary.json.partial").write_text("{")       # a run cut short
+    partial = tmp_path / "res.partial"
+    partial.mkdir()
+    (partial / "notes.txt").write_text("keep")
+    one_line_error(vifusion("run", "--out", out, "--quiet", "--no-report"), "notes.txt")
+    assert (partial / "notes.txt").read_text() == "keep"
+    (partial / "notes.txt").unlink()
+    r = vifusion("run", "--out", out, "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (out / "report").iterdir()) == ["summary.json"] and not partial.exists()
+
+
+def test_a_drive_of_one_frame_runs(copy, tmp_path):
+    """frames.csv listing one frame inside the CAN log's span: the run said "no overlap between
+    the video's frame times (5.000 .. 5.000 s ...)" (a review); a single time inside the other's
+    span overlaps it. The run goes through, its time line without a share of a duration."""
+    frames = pd.read_csv(copy / "frames.csv")
+    frames.iloc[[len(frames) // 2]].to_csv(copy / "frames.csv", index=False, float_format="%.9f")
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--no-report", "--workers", "1", "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert len(pd.read_csv(tmp_path / "out" / "vision.csv")) == 1 and "one frame" in r.stdout
+
+
 def test_a_table_given_as_a_value_is_a_config_error(tmp_path):
     from fusion.config import load_config
     from fusion.errors import ConfigError

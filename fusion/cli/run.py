@@ -310,22 +310,43 @@ OFFSET_SIGNIFICANCE = 2.0
 
 #: What a run writes into its ``--out`` folder: an existing folder holding only these is replaced.
 RUN_OUTPUTS = frozenset({"vision.csv", "vision.parquet", "fused.csv", "fused.parquet", "calibration.toml", "report"})
+#: What a run writes into ``report/`` (:func:`fusion.report.write_report`).
+REPORT_OUTPUTS = frozenset({"report.html", "summary.json", "attitude.png", "world.png", "errors.png", "road.png",
+                            "biases.png"})
+
+
+def _not_written_by_a_run(folder: Path) -> list[str]:
+    """What ``folder`` holds that no run writes there (nor one cut short: ``NAME.partial``),
+    ``report/`` included."""
+    def foreign(names, allowed):
+        return sorted(n for n in names if n not in allowed and not (n.endswith(".partial") and n[:-8] in allowed))
+
+    other = foreign((p.name for p in folder.iterdir()), RUN_OUTPUTS)
+    report = folder / "report"
+    if report.is_dir():
+        other += [f"report/{n}" for n in foreign((p.name for p in report.iterdir()), REPORT_OUTPUTS)]
+    elif report.exists():
+        other.append("report (a file)")
+    return other
 
 
 def check_out(out: Path) -> None:
     """``--out`` must be new, or a folder an earlier run wrote (replaced at the end): a folder
-    with anything else in it is left alone, not emptied."""
+    with anything else in it, ``report/`` included, is left alone, not emptied. The same holds for
+    ``OUT.partial``, the folder the run writes into first (a review found a user's files in both
+    deleted)."""
     from ..errors import InputError
 
     if not out.name:
         raise InputError(f"--out {out}: the root is not an output folder")
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out} is a file, not a folder")
-    if out.is_dir():
-        other = sorted(p.name for p in out.iterdir() if p.name not in RUN_OUTPUTS)
-        if other:
-            raise InputError(f"--out {out} holds files a run did not write ({', '.join(other[:3])}"
-                             f"{', ...' if len(other) > 3 else ''}): give a new or empty folder")
+    for folder, what in ((out, "--out"), (out.with_name(out.name + ".partial"), "the run's temporary folder")):
+        if folder.exists() and not folder.is_dir():
+            raise InputError(f"{what} {folder} is a file, not a folder")
+        if folder.is_dir():
+            other = _not_written_by_a_run(folder)
+            if other:
+                raise InputError(f"{what} {folder} holds files a run did not write ({', '.join(other[:3])}"
+                                 f"{', ...' if len(other) > 3 else ''}): give a new or empty folder")
 
 
 def _offset_line(t: dict) -> str:
@@ -345,9 +366,11 @@ def _print_summary(out, files, frames, imu, timings, warnings, summary, time_off
     print(f"wrote {out}/vision.csv, {out}/fused.csv{cal}, {out}/report/{report}")
     fixed = timings.get("start-up", 0.0) + timings.get("report", 0.0)
     per_drive = total_s - fixed
-    print(f"time: total {total_s:.1f} s for a {drive_s:.1f} s drive; fixed costs {fixed:.1f} s "
+    share = (f" = {100 * per_drive / drive_s:.1f} % of the drive's duration" if drive_s > 0
+             else " (one frame: no duration to compare with)")
+    print(f"time: total {total_s:.1f} s for a {drive_s if drive_s > 0 else 0.0:.1f} s drive; fixed costs {fixed:.1f} s "
           f"(start-up {timings.get('start-up', 0):.1f}, report {timings.get('report', 0):.1f}); "
-          f"the rest {per_drive:.1f} s = {100 * per_drive / drive_s:.1f} % of the drive's duration "
+          f"the rest {per_drive:.1f} s{share} "
           f"(vision {timings.get('vision', 0):.1f}, CAN {timings.get('CAN decode', 0):.1f}, fusion {timings.get('fusion', 0):.1f}, "
           f"outputs {timings.get('outputs', 0):.1f})")
     if time_offset:
