@@ -104,6 +104,10 @@ class DecodePlan:
 _SYNTAX = re.compile(r"line (\d+), column (\d+): \"(.*)\"", re.S)
 
 
+#: cantools' refusal of VAL_ entries whose signal no message has: ``VAL_ <frame id> <signal>``.
+_UNUSED_VAL = re.compile(r"VAL_ (\d+) (\w+)")
+
+
 def load_dbc(path: str | Path) -> Any:
     """Load a DBC (or any database format cantools reads) with clear one-line errors.
 
@@ -124,7 +128,8 @@ def load_dbc(path: str | Path) -> Any:
     Notes
     -----
     ``strict=False``: overlapping signals elsewhere in a real DBC do not stop the decoding of the
-    mapped ones; :func:`resolve` checks the mapped signals fit their message.
+    mapped ones; :func:`resolve` checks the mapped signals fit their message. Value tables
+    (``VAL_``) of signals that no message has are dropped (cantools refuses them).
     """
     path = Path(path)
     if not path.exists():
@@ -135,7 +140,21 @@ def load_dbc(path: str | Path) -> Any:
     level = log.level
     log.setLevel(logging.ERROR)   # its warnings (e.g. two messages with one ID) are ours to word: resolve()
     try:
-        return cantools.database.load_file(path, strict=False)
+        try:
+            return cantools.database.load_file(path, strict=False)
+        except cantools.database.UnsupportedDatabaseFormatError as e:
+            stale = _UNUSED_VAL.findall(" ".join(str(e).split()))
+            if not stale or path.suffix.lower() != ".dbc":
+                raise
+            # VAL_ tables of signals no message has (a DBC edited by hand, a signal renamed):
+            # cantools refuses the whole file even with strict=False; they describe nothing
+            # that is decoded, so they are dropped (a review: such a file was refused, and the
+            # error hid the mapped signal's own absence)
+            text = path.read_text(encoding="cp1252")
+            for frame_id, signal in stale:
+                text = re.sub(rf"(?m)^[ \t]*VAL_[ \t]+{frame_id}[ \t]+{re.escape(signal)}[ \t][^;]*;[ \t]*\r?\n?",
+                              "", text)
+            return cantools.database.load_string(text, database_format="dbc", strict=False)
     except cantools.database.UnsupportedDatabaseFormatError as e:
         text = " ".join(str(e).split())
         m = _SYNTAX.search(text)

@@ -80,6 +80,10 @@ class ReadState:
     messages: int = 0
     position: Callable[[], int] | None = None
     size: int | None = None
+    #: A text log's line being read (set by the reader of text logs), and the line at which a
+    #: reader last logged a warning: the TRC reader logs a line it cannot parse and goes on.
+    line: Callable[[], int] | None = None
+    warning_line: int = -1
 
     stop_reason: str = ""               # why the read stopped early (the first cause)
 
@@ -93,6 +97,22 @@ class ReadState:
         self.problem(text)
         if not self.stop_reason:
             self.stop_reason = _one_line(text)
+
+
+def _without_traceback(text: str) -> str:
+    """A reader's message without the traceback asammdf puts into its messages and logged
+    warnings (a review: 300 characters of one in the one-line error): what comes before it and
+    its last line, the cause."""
+    head, sep, tb = text.partition("Traceback (most recent call last)")
+    if not sep:
+        return text
+    lines = [line.strip() for line in tb.splitlines() if line.strip()]
+    return f"{head.strip()} {lines[-1] if lines else ''}".strip()
+
+
+def _cause(e: Exception) -> str:
+    """A reader's exception as a short cause."""
+    return " ".join(_without_traceback(str(e)).split())[:200] or type(e).__name__
 
 
 def _one_line(text: str) -> str:
@@ -145,8 +165,10 @@ class _CountWarnings(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         self.state.warnings += 1
+        if self.state.line is not None:
+            self.state.warning_line = self.state.line()
         if self.state.warnings <= 3:
-            self.state.problem(f"reader warning: {record.getMessage()}")
+            self.state.problem(f"reader warning: {_without_traceback(record.getMessage())}")
 
 
 @contextmanager
@@ -227,6 +249,7 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
     with opener() as f:
         feed = _Lines(f)
         state.position = (lambda: feed.chars) if not gz else None
+        state.line = lambda: feed.line_no
         first = True
         last_fail = -1
         header: list[str] = []
@@ -319,7 +342,12 @@ def _check_end(feed: _Lines, header: list[str], state: ReadState) -> None:
     """A text log whose last line, without line end, does not parse or misses data bytes was cut
     off mid-line (that line is not read; a complete last line without line end is read);
     a Vector ASC log that opened a ``Begin TriggerBlock`` and does not close it broke off
-    (python-can's writer and CANoe close it when the recording ends): marked incomplete."""
+    (python-can's writer and CANoe close it when the recording ends): marked incomplete. A last
+    line without line end that the reader logged a warning for (TRC: "Failed to parse
+    message", the line skipped) is cut too: a TRC log cut before a line's data was read as
+    complete (a review)."""
+    if feed.unterminated and state.warning_line == feed.line_no:
+        feed.cut = True
     if feed.cut:
         state.stopped(f"line {feed.line_no}: the file ends inside it (no line end, frame not whole): "
                       "truncated, that line not read")
@@ -335,7 +363,7 @@ def _iter_binary(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[
         try:
             reader = cls(gzip.open(path, "rb")) if gz else cls(path)
         except Exception as e:  # noqa: BLE001 - python-can/asammdf raise many types on garbage
-            error = f"{path}: not a readable {fmt} log: {type(e).__name__}: {' '.join(str(e).split())[:200]}"
+            error = f"{path}: not a readable {fmt} log: {type(e).__name__}: {_cause(e)}"
         if error is not None:
             gc.collect()  # half-built readers (asammdf's MDF4) complain in __del__: let them, quietly
     if error is not None:

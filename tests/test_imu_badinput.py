@@ -8,6 +8,7 @@ import math
 
 import can
 import numpy as np
+import pandas as pd
 import pytest
 
 from drivesim.canlog import write_can_log
@@ -316,6 +317,24 @@ def test_UNREADABLE_FILES_one_line(tmp_path, name, content, pattern):
     assert name in _one_line(e)
 
 
+def test_a_corrupt_mf4_is_said_without_a_traceback(tmp_path, clean):
+    """An MF4 log with 50 bytes of its compressed data zeroed: asammdf logs a message with
+    a whole Python traceback inside, which reached the one-line error (a review: 359
+    characters of it). Now the cause alone: what precedes the traceback and its last line."""
+    _, _, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / "x.mf4")
+    data = bytearray(path.read_bytes())
+    k = int(0.3 * len(data))              # inside the compressed frames: 'Invalid deflate block'
+    data[k:k + 50] = bytes(50)
+    path.write_bytes(bytes(data))
+    try:
+        _, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+        said = " ".join(summary.problems)
+    except DecodeError as e:
+        said = str(e)
+    assert said and "Traceback" not in said and 'File "' not in said, said
+
+
 def test_MISSING_FILES_one_line(tmp_path):
     with pytest.raises(DecodeError, match="no such log file"):
         read_log(tmp_path / "nope.blf", sim_mapping(), MOUNT_FRD)
@@ -383,6 +402,27 @@ def test_AN_ID_NO_INTEGER_TYPE_HOLDS_is_an_unknown_id(tmp_path, clean):
     path.write_text("\n".join(lines + [",".join(fields)]) + "\n")
     table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
     assert summary.unknown_ids.get("0x" + "F" * 20) == 1 and len(table) == len(ref)
+
+
+def test_DBC_STALE_VALUE_TABLES_are_dropped(tmp_path, clean):
+    """A value table (``VAL_``) of a signal no message has: cantools refuses the whole DBC even
+    with strict=False, and with the mapped signal renamed that refusal hid the real problem (a
+    review). Such tables are dropped: the log decodes as with the clean DBC, and a renamed
+    mapped signal is said by name."""
+    from test_imu_common import DBC_PATH
+
+    _, _, msgs, ref, _ = clean
+    log = _write(msgs, tmp_path / "x.csv")
+    text = DBC_PATH.read_text()
+    stale = tmp_path / "stale.dbc"
+    stale.write_text(text + 'VAL_ 372 NoSuchSignal 1 "on" 0 "off" ;\n')
+    table, _ = read_log(log, dataclasses.replace(sim_mapping(), dbc_path=stale), MOUNT_FRD)
+    pd.testing.assert_frame_equal(table, ref)
+    renamed = tmp_path / "renamed.dbc"
+    assert " SG_ RateX " in text
+    renamed.write_text(text.replace(" SG_ RateX ", " SG_ RateXX "))       # its VAL_ table now stale
+    with pytest.raises(ImuConfigError, match='no signal "RateX"'):
+        read_log(log, dataclasses.replace(sim_mapping(), dbc_path=renamed), MOUNT_FRD)
 
 
 @pytest.mark.parametrize("edit, pattern", [
@@ -453,6 +493,23 @@ def test_LAST_LINE_WITHOUT_LINE_END_whole_is_read_cut_is_marked(tmp_path, clean,
     table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
     assert not summary.complete
     assert any("no line end" in p and "truncated" in p for p in summary.problems), summary.problems
+    assert len(ref) - 1 <= len(table) <= len(ref)
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".csv", ".trc", ".log"])
+def test_LAST_LINE_cut_before_its_data_is_marked(tmp_path, clean, suffix):
+    """A writer cut off before the last line's data bytes: python-can's TRC reader logs
+    "Failed to parse message" and skips the line instead of raising, and the log was read as
+    complete (a review: half a TRC log taken for a whole one). Every text format: incomplete."""
+    _, _, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / f"x{suffix}")
+    ref, _ = read_log(path, sim_mapping(), MOUNT_FRD)
+    lines = path.read_text().rstrip("\n").split("\n")
+    k = max(i for i, line in enumerate(lines) if line.strip() and not line.lower().startswith("end "))
+    cut = lines[k][:len(lines[k]) // 2].rstrip()          # half the line: its data are gone
+    path.write_text("\n".join(lines[:k] + [cut]))
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert not summary.complete, (cut, summary.problems)
     assert len(ref) - 1 <= len(table) <= len(ref)
 
 
