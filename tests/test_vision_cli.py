@@ -257,6 +257,11 @@ def test_a_numbered_picture_missing_is_a_missing_frame(tmp_path):
     for k in range(3):
         cv2.imwrite(str(stamps / f"{1403636579763555584 + k * 50_000_000}.png"), np.full((4, 6, 3), k, np.uint8))
     assert len(FrameSource(stamps)) == 3
+    # a stray copy among numbered pictures: the whole folder went to name order and every frame
+    # after it took the picture before its own, without a word (a review); now an error
+    cv2.imwrite(str(tmp_path / "000003 - Copy.png"), np.full((4, 6, 3), 9, np.uint8))
+    with pytest.raises(VisionError, match="5 numbered pictures and 1 other names .000003 - Copy.png"):
+        FrameSource(tmp_path)
 
 
 def test_a_folder_of_every_third_frame_named_by_number(tmp_path):

@@ -132,8 +132,15 @@ def _by_number(files: list[Path], listed: list[int] | None = None) -> list[Path 
     (a folder of every third frame named by its original number, listed 0, 3, 6, ...: in name
     order picture k had taken frame k's time, a review found); positions it all names (and not
     all numbers) are name order. Otherwise numbers that skip at most as many values as there are
-    pictures are frame numbers."""
-    if not all(p.stem.isdigit() for p in files):
+    pictures are frame numbers. Numbered names mixed with others are an error: in name order
+    every frame after a stray ``000040 - Copy.png`` took the picture before its own (a review)."""
+    digits = [p.stem.isdigit() for p in files]
+    if any(digits) and not all(digits):
+        odd = [p.name for p, d in zip(files, digits) if not d]
+        raise VisionError(f"{files[0].parent}: {sum(digits)} numbered pictures and {len(odd)} other names "
+                          f"({', '.join(odd[:3])}{', ...' if len(odd) > 3 else ''}): the frames' order is not "
+                          "clear; remove or rename those")
+    if not all(digits):
         return files
     numbers = [int(p.stem) for p in files]
     first, span = min(numbers), max(numbers) - min(numbers) + 1
