@@ -30,7 +30,7 @@ import numpy as np
 from vision.frames import wrap_angle
 
 from .ekf import (DIM_X, GRAVITY_M_S2, AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, accel_r_scale,
-                  road_ahead_as_seen, vision_hx, vision_jacobian)
+                  relative_outputs, road_ahead_as_seen, vision_hx)
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 
@@ -84,7 +84,17 @@ class FusionOptions:
 
 @dataclass(frozen=True)
 class Estimate:
-    """The filter's output at ``t_s``: angles in rad, 1-sigma in rad."""
+    """The filter's output at ``t_s`` (s, the CAN log's clock), angles in rad with their
+    1-sigma (INTERFACE.md's frames and signs): ``roll``, ``pitch``, ``yaw`` of the vehicle
+    relative to the road (ZYX of ``R_o_from_v``: positive roll leans right, positive pitch is
+    nose down, positive yaw nose left), ``bank`` of the road (positive raises its left edge),
+    ``roll_world``, ``pitch_world`` relative to gravity, ``grade`` of the road in the pitch
+    convention (positive downhill); ``gyro_bias_rad_s`` in vehicle axes (NaN for an absent
+    pitch gyro); ``speed_m_s``; ``vision_age_s``, the time since the last vision update the
+    filter took; ``cov_rpyb_rad2``, the joint 4x4 covariance of (roll, pitch, yaw, bank), whose
+    roll-bank terms the sigmas alone do not give (they share the gravity reference). Before the
+    first wheel speed the speed and the gravity-referenced angles are NaN
+    (:meth:`FusionStream.estimate`)."""
 
     t_s: float
     roll_rad: float
@@ -103,6 +113,9 @@ class Estimate:
     gyro_bias_rad_s: tuple[float, float, float]
     speed_m_s: float
     vision_age_s: float
+    grade_sigma_rad: float = math.nan
+    speed_sigma_m_s: float = math.nan
+    cov_rpyb_rad2: np.ndarray | None = None
 
 
 @dataclass
@@ -707,16 +720,18 @@ class FusionStream:
         if self._speed_initialized:
             return est
         nan = math.nan
+        cov = est.cov_rpyb_rad2.copy()
+        cov[3, :] = cov[:, 3] = nan
         return replace(est, speed_m_s=nan, bank_rad=nan, bank_sigma_rad=nan, roll_world_rad=nan,
-                       roll_world_sigma_rad=nan, pitch_world_rad=nan, pitch_world_sigma_rad=nan, grade_rad=nan)
+                       roll_world_sigma_rad=nan, pitch_world_rad=nan, pitch_world_sigma_rad=nan, grade_rad=nan,
+                       grade_sigma_rad=nan, speed_sigma_m_s=nan, cov_rpyb_rad2=cov)
 
 
 def estimate_from(t_s: float, x: np.ndarray, P: np.ndarray, vision_age_s: float = math.nan,
                   has_pitch_rate: bool = True) -> Estimate:
     """Outputs of state ``x`` with covariance ``P`` (without a pitch gyro, no bias of it: NaN)."""
-    rel = vision_hx(x)
-    H = vision_jacobian(x)
-    sig = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", H, P, H), 0.0))
+    rel, cov = (a[0] for a in relative_outputs(np.ascontiguousarray(x)[None], np.ascontiguousarray(P)[None]))
+    sig = np.sqrt(np.maximum(np.diag(cov)[:3], 0.0))
     d = np.sqrt(np.maximum(np.diag(P), 0.0))
     return Estimate(
         t_s=t_s, roll_rad=rel[0], pitch_rad=rel[1], yaw_rad=rel[2], bank_rad=x[S.BANK],
@@ -724,5 +739,6 @@ def estimate_from(t_s: float, x: np.ndarray, P: np.ndarray, vision_age_s: float 
         roll_sigma_rad=sig[0], pitch_sigma_rad=sig[1], yaw_sigma_rad=sig[2], bank_sigma_rad=d[S.BANK],
         roll_world_sigma_rad=d[S.ROLL_W], pitch_world_sigma_rad=d[S.PITCH_W],
         gyro_bias_rad_s=(x[S.GYRO_BIAS_X], x[S.GYRO_BIAS_Y] if has_pitch_rate else math.nan, x[S.GYRO_BIAS_Z]),
-        speed_m_s=x[S.SPEED], vision_age_s=vision_age_s,
+        speed_m_s=x[S.SPEED], vision_age_s=vision_age_s, grade_sigma_rad=d[S.GRADE], speed_sigma_m_s=d[S.SPEED],
+        cov_rpyb_rad2=cov,
     )

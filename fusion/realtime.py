@@ -64,6 +64,15 @@ def _refused(reason: str) -> VisionEstimate:
     return VisionEstimate(nan, nan, nan, nan, nan, nan, False, reason=reason)
 
 
+def _stamp(t_s, method: str) -> float:
+    """A capture time as a float; a caller's non-number is a TypeError that says so (NaN is a
+    number: refused and counted as a bad stamp)."""
+    try:
+        return float(t_s)
+    except (TypeError, ValueError):
+        raise TypeError(f"{method} takes the capture time in seconds on the bus clock, got {t_s!r}") from None
+
+
 class LiveFusion:
     """CAN messages and frames in, :class:`fusion.engine.Estimate` out; see the module docstring."""
 
@@ -100,6 +109,8 @@ class LiveFusion:
         """One CAN message (python-can ``Message``); returns how many IMU samples it released
         that the filter used (a sample missing a gyro or accelerometer value is skipped and
         counted in ``stream.counts["imu_invalid"]``)."""
+        if not hasattr(msg, "arbitration_id") or not hasattr(msg, "data"):
+            raise TypeError(f"push_can takes a python-can Message, got {type(msg).__name__}")
         n = 0
         with self._lock:
             for s in self.decoder.push(msg, received_s):
@@ -141,7 +152,9 @@ class LiveFusion:
         estimate whose ``reason`` says why is returned. Thirty frames in a row refused for their stamps, or with results too old for
         the filter's history, put a line in ``warnings``. From one thread at a time (the
         estimator keeps the road map between frames)."""
-        t_cap = t_s + self.settings.camera_time_offset_s
+        t_cap = _stamp(t_s, "push_frame") + self.settings.camera_time_offset_s
+        if not isinstance(image, np.ndarray):
+            raise TypeError(f"push_frame takes the frame as a numpy image (grey or BGR), got {type(image).__name__}")
         with self._lock:
             t0, v0 = self._last_frame
             if not math.isfinite(t_cap):
@@ -177,12 +190,19 @@ class LiveFusion:
         return est
 
     def push_vision(self, t_s: float, est: VisionEstimate) -> None:
-        """A vision result computed elsewhere (another thread or process)."""
+        """A vision result computed elsewhere (another thread or process), captured at ``t_s``
+        (bus clock, before the configured camera offset). Thirty results in a row dropped for
+        their stamps (too far ahead of the bus, or older than the filter's history) put a line
+        in ``warnings``."""
+        if not isinstance(est, VisionEstimate):
+            raise TypeError(f"push_vision takes a vision.VisionEstimate, got {type(est).__name__}")
+        t_s = _stamp(t_s, "push_vision")
         with self._lock:
             t_cap = t_s + self.settings.camera_time_offset_s
             # before the first IMU sample the stream drops the oldest queued results itself:
             # not this result's age (a camera that starts first is no clock fault)
             old = self.stream.counts["vision_too_old"] if math.isfinite(self.stream.t_s) else math.inf
+            future = self.stream.counts["vision_future"]
             self.stream.add_vision(t_cap, est.rpy_rad,
                                    (est.roll_sigma_rad, est.pitch_sigma_rad, est.yaw_sigma_rad), est.valid,
                                    est.curvature_1_m, est.lateral_offset_m,
@@ -191,12 +211,18 @@ class LiveFusion:
                                    (est.road_twist_rad_m, est.road_twist_sigma_rad_m), est.twist_response,
                                    (est.vertical_curvature_1_m, est.pitch_per_vertical_curvature_m),
                                    est.yaw_per_curvature_m)
-            if self.stream.counts["vision_too_old"] > old:
+            if self.stream.counts["vision_future"] > future:
+                # results of another thread or process stamped ahead of the bus were dropped
+                # without a word (push_frame said it for its own frames, a review)
+                self._count_in_row("ahead", f"stamped too far ahead of the CAN bus (this one {t_cap:.3f} s, the bus "
+                                   f"at {self.stream.t_s:.3f} s): is the camera's clock ahead, or "
+                                   "camera_time_offset_s wrong? (stream.counts['vision_future'])")
+            elif self.stream.counts["vision_too_old"] > old:
                 self._count_in_row("old", f"with results older than the filter's history (this one "
                                    f"{t_cap:.3f} s, the bus at {self.stream.t_s:.3f} s): is the camera's clock "
                                    "behind, or camera_time_offset_s wrong? (stream.counts['vision_too_old'])")
             elif est.valid:
-                self._in_row["old"] = 0
+                self._in_row["old"] = self._in_row["ahead"] = 0
 
     def _count_in_row(self, kind: str, what: str) -> None:
         """One more frame in a row refused for its stamp; the warning once at the limit."""

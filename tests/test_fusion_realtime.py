@@ -349,6 +349,34 @@ def _live_run(sample_offline, frame_times):
     return live, e, np.degrees(e.bank_rad) - np.interp(e.t_s, truth["t_s"], truth["bank_deg"])
 
 
+def test_the_estimate_carries_the_joint_covariance_and_the_grades_sigma(sample_offline):
+    """An embedder asked for the estimate "with covariance" got per-angle sigmas only: no
+    grade or speed sigma, and not the roll-bank terms the NEES needs (a review). The estimate
+    now carries the joint 4x4 covariance of (roll, pitch, yaw, bank), whose diagonal is the
+    four sigmas (to rounding), and the grade's and speed's sigmas."""
+    live, e, _ = _live_run(sample_offline, lambda n, t: [t])
+    cov = e.cov_rpyb_rad2
+    assert cov.shape == (4, 4) and np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > 0)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), [e.roll_sigma_rad, e.pitch_sigma_rad, e.yaw_sigma_rad,
+                                                       e.bank_sigma_rad], rtol=1e-9)
+    assert 0 < e.grade_sigma_rad < np.radians(3.0) and 0 < e.speed_sigma_m_s < 1.0
+
+
+def test_caller_mistakes_are_type_errors_that_say_what_was_expected(sample_offline):
+    """A caller's wrong argument gave an AttributeError or TypeError from deep inside (``push_can
+    (None)``: "'NoneType' object has no attribute 'arbitration_id'", a review): now a TypeError
+    naming the method and what it takes. A NaN stamp is a number: counted as a bad time."""
+    cfg, _, frames, _, _ = sample_offline
+    live = LiveFusion(cfg)
+    for call, words in ((lambda: live.push_can(None), "push_can takes a python-can Message"),
+                        (lambda: live.push_frame(0.0, None), "push_frame takes the frame as a numpy image"),
+                        (lambda: live.push_frame(None, frames[0][1]), "push_frame takes the capture time"),
+                        (lambda: live.push_vision(0.0, (0.0, 0.0, 0.0)), "push_vision takes a vision.VisionEstimate")):
+        with pytest.raises(TypeError, match=words):
+            call()
+    assert not live.push_frame(float("nan"), frames[0][1]).valid and live.counts["frames_bad_time"] == 1
+
+
 def test_a_frame_stamped_far_ahead_or_not_at_all_is_refused_alone(sample_offline):
     """One frame stamped 100 s ahead of the bus (a camera clock glitch) is refused as from the
     future and the frames after it go on: before, the refused frame's stamp stayed the last
@@ -389,6 +417,23 @@ def test_a_camera_clock_that_steps_back_is_said(sample_offline):
     # 29 behind, one good, 29 behind: a good frame ends the run of them
     live, _, _ = _live_run(sample_offline, lambda n, t: [t - 20.0] if 100 <= n < 159 and n != 129 else [t])
     assert live.counts["frames_out_of_order"] == 58 and not any("stepped back" in w for w in live.warnings)
+
+
+def test_results_pushed_ahead_of_the_bus_are_said(sample_offline):
+    """``push_vision`` with results of another thread stamped 2 s ahead of the bus: the stream
+    drops them (``vision_future``), and ``warnings`` now says so once after 30 in a row, as it
+    does for ``push_frame``'s own frames (600 of 600 were dropped without a word, a review)."""
+    cfg, messages, frames, _, _ = sample_offline
+    live = LiveFusion(cfg)
+    est = live.vision.estimate(frames[0][1])
+    for m in messages[:300]:
+        live.push_can(m)
+    t0 = live.stream.t_s
+    for k in range(40):
+        live.push_vision(t0 + 2.0 + k / 30.0, est)
+    assert live.stream.counts["vision_future"] == 40
+    hits = [w for w in live.warnings if "too far ahead of the CAN bus" in w]
+    assert len(hits) == 1 and hits[0].startswith("30 frames in a row"), live.warnings
 
 
 def test_a_camera_clock_seconds_off_the_bus_is_said(sample_offline):

@@ -78,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
         cam = threading.Thread(target=camera, daemon=True)
         cam.start()
         t0, shown = None, 0
-        print(f"{'t':>6}  {'roll':>14}  {'pitch':>14}  {'bank':>14}  (deg, relative to the road, 1-sigma)")
+        print(f"{'t':>6}  {'roll':>14}  {'pitch':>14}  {'bank':>14}  "
+              "(deg, 1-sigma; roll and pitch relative to the road, bank of the road to level)")
         try:
             while True:
                 msg = rx.recv(timeout=1.0)
