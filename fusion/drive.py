@@ -189,6 +189,54 @@ def frames_outside_warning(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: 
             f"{after} after) and are not used: are {frames_name}'s times in seconds on the CAN log's clock?")
 
 
+def video_rate(video: Path) -> float | None:
+    """A video file's frame rate as its container gives it, or None (a folder of pictures, a
+    container without one, a file PyAV cannot open: the vision's own reading says what is wrong)."""
+    import av
+
+    if Path(video).is_dir():
+        return None
+    try:
+        with av.open(str(video)) as container:
+            rate = container.streams.video[0].average_rate
+            return float(rate) if rate else None
+    except (av.FFmpegError, OSError, IndexError):
+        return None
+
+
+#: A frame interval of frames.csv off the median frame period (per frame number) by more than
+#: this fraction is said: times and frame numbers disagree there.
+FRAME_PERIOD_TOLERANCE = 0.5
+
+
+def frames_spacing_warning(frames: pd.DataFrame, frames_name: str, video_fps: float | None = None) -> str | None:
+    """A warning when frames.csv's times disagree with its frame numbers: intervals whose time
+    per frame number is off the median by more than :data:`FRAME_PERIOD_TOLERANCE` (a jump of
+    half a second between two consecutive 30 fps frames), or a median period off the video's
+    own rate by more than that (360 frames 1 ns apart); None when they agree. A review found
+    both fused at those times without a word."""
+    t = frames["t_s"].to_numpy(dtype=float)
+    f = frames["frame"].to_numpy(dtype=float)
+    if len(t) < 2:
+        return None
+    period = np.diff(t) / np.diff(f)
+    med = float(np.median(period))
+    off = np.abs(period / med - 1.0) > FRAME_PERIOD_TOLERANCE
+    said = []
+    if off.any():
+        k = int(np.argmax(np.abs(period / med - 1.0)))
+        said.append(f"{int(off.sum())} of {len(period)} frame intervals are off the median period "
+                    f"({1e3 * med:.3g} ms a frame) by more than {100 * FRAME_PERIOD_TOLERANCE:.0f} % (the worst "
+                    f"{1e3 * period[k]:.3g} ms a frame, frames {int(f[k])} to {int(f[k + 1])})")
+    if video_fps and video_fps > 0 and abs(med * video_fps - 1.0) > FRAME_PERIOD_TOLERANCE:
+        said.append(f"its median period {1e3 * med:.3g} ms is not the video's {1e3 / video_fps:.3g} ms "
+                    f"({video_fps:g} fps)")
+    if not said:
+        return None
+    return (f"{frames_name}: {'; '.join(said)}: are its times and frame numbers the video's? The frames are "
+            "fused at the times it gives")
+
+
 def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str, fps: float) -> str | None:
     """A warning when the video holds more than a second of frames after the last one that
     ``frames`` lists (a frames.csv cut short: the frames after it are not processed), or None.

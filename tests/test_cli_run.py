@@ -461,6 +461,25 @@ def test_a_drive_of_one_frame_runs(copy, tmp_path):
     assert len(pd.read_csv(tmp_path / "out" / "vision.csv")) == 1 and "one frame" in r.stdout
 
 
+def test_frame_times_that_disagree_with_their_numbers_are_said(copy, tmp_path):
+    """frames.csv with half a second between two consecutive 30 fps frames (a logger's clock
+    jump), or every frame 1 ns apart: both were fused at those times without a word (a
+    review). A warning now names the interval, or the median period against the video's rate;
+    the drive's own frames.csv says nothing (checked by every run test's clean stderr)."""
+    frames = pd.read_csv(copy / "frames.csv")
+    k = len(frames) // 2
+    jumped = frames.assign(t_s=frames["t_s"] + np.where(np.arange(len(frames)) >= k, 0.5, 0.0))
+    jumped.to_csv(copy / "frames.csv", index=False, float_format="%.9f")
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "a", "--no-report", "--workers", "1", "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert f"1 of {len(frames) - 1} frame intervals are off the median period" in r.stderr, r.stderr
+    assert f"frames {int(frames['frame'][k - 1])} to {int(frames['frame'][k])}" in r.stderr, r.stderr
+    tiny = frames.assign(t_s=frames["t_s"].iloc[k] + 1e-9 * np.arange(len(frames)))
+    tiny.to_csv(copy / "frames.csv", index=False, float_format="%.12f")
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "b", "--no-report", "--workers", "1", "--quiet")
+    assert r.returncode == 0 and "is not the video's" in r.stderr, r.stderr
+
+
 def test_a_table_given_as_a_value_is_a_config_error(tmp_path):
     from fusion.config import load_config
     from fusion.errors import ConfigError
