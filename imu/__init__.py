@@ -7,15 +7,8 @@ channel is; units come from the DBC unit strings (:mod:`imu.units`). ``read_oxts
 table of a KITTI OXTS recording (:mod:`imu.oxts`).
 """
 
-from .can_source import LiveSource, StreamDecoder
 from .config import ACCEL, CHANNELS, GYRO, CanMapping, ImuMount
-from .dbc import DecodePlan, load_dbc, resolve
 from .errors import DecodeError, ImuConfigError, ImuError
-from .log_source import LOG_SUFFIXES, iter_messages, read_log
-from .oxts import read_oxts
-from .samples import (
-    COLUMNS, FRESH_COLUMNS, VALUE_COLUMNS, ChannelStats, Gap, ImuSample, SourceStats, Summary, samples_frame,
-)
 from .units import si_factor
 
 __all__ = [
@@ -26,3 +19,24 @@ __all__ = [
     "samples_frame",
     "ImuError", "ImuConfigError", "DecodeError",
 ]
+
+#: What loads on first use (python-can, asammdf, cantools, pandas: half a second of imports that
+#: a command's start-up, and a Ctrl-C during it, need not wait for; ``from imu import read_log``
+#: works as before).
+_LAZY = {
+    "LiveSource": "can_source", "StreamDecoder": "can_source",
+    "DecodePlan": "dbc", "load_dbc": "dbc", "resolve": "dbc",
+    "LOG_SUFFIXES": "log_source", "iter_messages": "log_source", "read_log": "log_source",
+    "read_oxts": "oxts",
+    "COLUMNS": "samples", "FRESH_COLUMNS": "samples", "VALUE_COLUMNS": "samples", "ChannelStats": "samples",
+    "Gap": "samples", "ImuSample": "samples", "SourceStats": "samples", "Summary": "samples",
+    "samples_frame": "samples",
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -83,9 +83,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    argv = sys.argv[1:] if argv is None else argv
-    args = parser.parse_args(argv)
+    try:
+        # the subcommands' modules load here: an interrupt during them is said as any other
+        # (it was a traceback of the imports, a review; the package's own imports before this
+        # are light: imu and vision load their heavy parts on first use)
+        parser = build_parser()
+        argv = sys.argv[1:] if argv is None else argv
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
     if not args.debug:
         # FFmpeg inside OpenCV prints its own line for a video it cannot open ("moov atom not
         # found") before the one-line error this program gives for it
