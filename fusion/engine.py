@@ -10,8 +10,8 @@ longer than an IMU interval, or frames come out of order) rolls the filter back 
 state just before its time and re-propagates the stored IMU samples: the same answer as if
 it had come in time, as long as it is within ``history_s``: the replay applies again the
 results (and deferred rolls, :class:`fusion.ekf.RollAhead`) that fell in the replayed samples.
-A deferred roll falls due ``roll_lookahead_m / v`` after its frame; one that falls due before
-the newest sample (a result later than that) is applied at the next interval's start.
+A deferred roll falls due ``roll_lookahead_m / v`` after its frame, and is applied at that
+time, in a replay too (a result later than that).
 
 With ``record=True`` every step's prior, posterior and Jacobian are kept for the RTS smoother
 (:mod:`fusion.smoother`); recording needs inputs in time order.
@@ -695,7 +695,15 @@ class FusionStream:
             return
         prev = base
         for i, s in enumerate(replay):
-            self._process_sample(s, prev=prev, visions=[item] if i == 0 else (), replayed=s.applied)
+            # the deferred rolls this replay queued (the late result's own) that fall due inside
+            # it, at their due time as in a run in time: they waited for the next sample and were
+            # applied at its interval's start (a review: results 0.7 / 0.9 s late put the roll
+            # 0.21 / 0.37 deg RMS off, 14 / 27 sigma at worst, where in time it is 0.045)
+            k = bisect.bisect_right(self._pending, s.t, key=_time_of)
+            due = self._pending[:k]
+            if k:
+                del self._pending[:k]
+            self._process_sample(s, prev=prev, visions=[item, *due] if i == 0 else due, replayed=s.applied)
             prev = s
 
     # ---- outputs ----

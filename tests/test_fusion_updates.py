@@ -101,6 +101,38 @@ def test_results_out_of_order_give_the_in_order_estimate(drive):
     np.testing.assert_allclose(shuffled.ekf.P, on_time.ekf.P, atol=1e-12)
 
 
+def test_results_later_than_their_deferred_roll_give_the_in_order_estimate(drive):
+    """Results 0.5-0.9 s late (within a 1 s history) whose rolls, of the road 12 m ahead, fall
+    due 0.5 s after capture, inside the span the late result replays: the replay applies them at
+    their due time. Before, they waited for the next sample and went in at its interval's start:
+    the final roll and bank 0.22 deg off the in-time run's (a review: LiveFusion's roll 0.21 /
+    0.37 deg RMS off at 0.7 / 0.9 s late, 14 / 27 sigma at worst; now 0.11 / 0.22 as reported,
+    2.2 / 2.0 sigma). Now 0.002 deg: not to rounding, as results in time order are, since one
+    frame's gate decides otherwise on the way (1 rejected against 0); the bar, 0.01 deg."""
+    imu, vis = drive.imu.iloc[:1000], drive.vision[drive.vision["t_s"] < 9.0]
+    delays = np.random.default_rng(5).uniform(0.5, 0.9, len(vis))
+
+    def run(delay_s):
+        s = FusionStream(drive.lever_arm_m, options=FusionOptions(history_s=1.0))
+        arrive = vis["t_s"].to_numpy() + delay_s
+        order = np.argsort(arrive, kind="stable")
+        j = 0
+        for row in imu.itertuples():
+            while j < len(order) and arrive[order[j]] <= row.t_s:
+                p = vis.iloc[order[j]]
+                s.add_vision(p.t_s, np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]), np.radians([0.1] * 3),
+                             True, p.curvature_1_m, p.lateral_offset_m, lookahead_m=12.0)
+                j += 1
+            s.add_imu(row.t_s, [row.gyro_x_rad_s, row.gyro_y_rad_s, row.gyro_z_rad_s],
+                      [row.accel_x_m_s2, row.accel_y_m_s2, row.accel_z_m_s2], row.speed_m_s, row.fresh_speed)
+        return s
+
+    on_time, late = run(np.zeros(len(vis))), run(delays)
+    assert late.counts["vision_late"] > 100 and late.counts["roll_ahead_used"] > 100
+    a, b = on_time.estimate(), late.estimate()
+    assert abs(math.degrees(b.roll_rad - a.roll_rad)) < 0.01 and abs(math.degrees(b.bank_rad - a.bank_rad)) < 0.01
+
+
 def test_a_result_stamped_at_the_newest_sample_equals_the_in_time_run(drive):
     """A vision result whose capture time is exactly the newest IMU sample's, handed in after
     that sample (the camera and the IMU share a trigger): applied at that sample as if it had
