@@ -71,6 +71,24 @@ def test_without_a_speed_the_roll_of_the_road_ahead_carries_its_twist_in_the_sig
     assert f.S[0, 0] < inn[0] + 0.5 * (0.003 * 10.0) ** 2
 
 
+def _delivered(drive, imu, vis, delay_s, history_s: float, lookahead_m: float = 0.0) -> FusionStream:
+    """A stream fed ``imu`` in order and each vision row ``delay_s`` after its capture (0.1 deg
+    sigmas; the roll of the road ``lookahead_m`` ahead)."""
+    s = FusionStream(drive.lever_arm_m, options=FusionOptions(history_s=history_s))
+    arrive = vis["t_s"].to_numpy() + delay_s
+    order = np.argsort(arrive, kind="stable")
+    j = 0
+    for row in imu.itertuples():
+        while j < len(order) and arrive[order[j]] <= row.t_s:
+            p = vis.iloc[order[j]]
+            s.add_vision(p.t_s, np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]), np.radians([0.1] * 3),
+                         True, p.curvature_1_m, p.lateral_offset_m, lookahead_m=lookahead_m)
+            j += 1
+        s.add_imu(row.t_s, [row.gyro_x_rad_s, row.gyro_y_rad_s, row.gyro_z_rad_s],
+                  [row.accel_x_m_s2, row.accel_y_m_s2, row.accel_z_m_s2], row.speed_m_s, row.fresh_speed)
+    return s
+
+
 def test_results_out_of_order_give_the_in_order_estimate(drive):
     """Vision results delayed by 0 to 150 ms each (random: they arrive out of order), within
     the 0.5 s history: rolled back and re-propagated, the final state equals the in-time run's
@@ -78,22 +96,7 @@ def test_results_out_of_order_give_the_in_order_estimate(drive):
     imu, vis = drive.imu.iloc[:1000], drive.vision[drive.vision["t_s"] < 9.9]
     delays = np.random.default_rng(4).uniform(0.0, 0.15, len(vis))
 
-    def run(delay_s):
-        s = FusionStream(drive.lever_arm_m, options=FusionOptions(history_s=0.5))
-        arrive = vis["t_s"].to_numpy() + delay_s
-        order = np.argsort(arrive, kind="stable")
-        j = 0
-        for row in imu.itertuples():
-            while j < len(order) and arrive[order[j]] <= row.t_s:
-                p = vis.iloc[order[j]]
-                s.add_vision(p.t_s, np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]), np.radians([0.1] * 3),
-                             True, p.curvature_1_m, p.lateral_offset_m)
-                j += 1
-            s.add_imu(row.t_s, [row.gyro_x_rad_s, row.gyro_y_rad_s, row.gyro_z_rad_s],
-                      [row.accel_x_m_s2, row.accel_y_m_s2, row.accel_z_m_s2], row.speed_m_s, row.fresh_speed)
-        return s
-
-    on_time, shuffled = run(np.zeros(len(vis))), run(delays)
+    on_time, shuffled = (_delivered(drive, imu, vis, d, history_s=0.5) for d in (np.zeros(len(vis)), delays))
     arrive = vis["t_s"].to_numpy() + delays
     assert np.any(np.diff(arrive[np.argsort(arrive)]) >= 0) and np.any(np.diff(arrive) < 0)   # really out of order
     assert shuffled.counts["vision_late"] > 100
@@ -112,22 +115,8 @@ def test_results_later_than_their_deferred_roll_give_the_in_order_estimate(drive
     imu, vis = drive.imu.iloc[:1000], drive.vision[drive.vision["t_s"] < 9.0]
     delays = np.random.default_rng(5).uniform(0.5, 0.9, len(vis))
 
-    def run(delay_s):
-        s = FusionStream(drive.lever_arm_m, options=FusionOptions(history_s=1.0))
-        arrive = vis["t_s"].to_numpy() + delay_s
-        order = np.argsort(arrive, kind="stable")
-        j = 0
-        for row in imu.itertuples():
-            while j < len(order) and arrive[order[j]] <= row.t_s:
-                p = vis.iloc[order[j]]
-                s.add_vision(p.t_s, np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]), np.radians([0.1] * 3),
-                             True, p.curvature_1_m, p.lateral_offset_m, lookahead_m=12.0)
-                j += 1
-            s.add_imu(row.t_s, [row.gyro_x_rad_s, row.gyro_y_rad_s, row.gyro_z_rad_s],
-                      [row.accel_x_m_s2, row.accel_y_m_s2, row.accel_z_m_s2], row.speed_m_s, row.fresh_speed)
-        return s
-
-    on_time, late = run(np.zeros(len(vis))), run(delays)
+    on_time, late = (_delivered(drive, imu, vis, d, history_s=1.0, lookahead_m=12.0)
+                     for d in (np.zeros(len(vis)), delays))
     assert late.counts["vision_late"] > 100 and late.counts["roll_ahead_used"] > 100
     a, b = on_time.estimate(), late.estimate()
     assert abs(math.degrees(b.roll_rad - a.roll_rad)) < 0.01 and abs(math.degrees(b.bank_rad - a.bank_rad)) < 0.01
