@@ -189,17 +189,18 @@ def frames_outside_warning(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: 
             f"{after} after) and are not used: are {frames_name}'s times in seconds on the CAN log's clock?")
 
 
-def video_rate(video: Path) -> float | None:
-    """A video file's frame rate as its container gives it, or None (a folder of pictures, a
-    container without one, a file PyAV cannot open: the vision's own reading says what is wrong)."""
+def video_container(video: Path) -> tuple[int, float | None] | None:
+    """A video file's frame count and frame rate as its container gives them (read without
+    decoding; the count 0 and the rate None where it has none), or None for a folder of pictures
+    or a file PyAV cannot open (the vision's own reading says what is wrong)."""
     import av
 
     if Path(video).is_dir():
         return None
     try:
         with av.open(str(video)) as container:
-            rate = container.streams.video[0].average_rate
-            return float(rate) if rate else None
+            stream = container.streams.video[0]
+            return int(stream.frames), (float(stream.average_rate) if stream.average_rate else None)
     except (av.FFmpegError, OSError, IndexError):
         return None
 
@@ -209,12 +210,14 @@ def video_rate(video: Path) -> float | None:
 FRAME_PERIOD_TOLERANCE = 0.5
 
 
-def frames_spacing_warning(frames: pd.DataFrame, frames_name: str, video_fps: float | None = None) -> str | None:
+def frames_spacing_warning(frames: pd.DataFrame, frames_name: str, video: Path | None = None) -> str | None:
     """A warning when frames.csv's times disagree with its frame numbers: intervals whose time
     per frame number is off the median by more than :data:`FRAME_PERIOD_TOLERANCE` (a jump of
-    half a second between two consecutive 30 fps frames), or a median period off the video's
-    own rate by more than that (360 frames 1 ns apart); None when they agree. A review found
-    both fused at those times without a word."""
+    half a second between two consecutive 30 fps frames), or a median period off the rate of
+    ``video``'s container by more than that (360 frames 1 ns apart); None when they agree. A
+    review found both fused at those times without a word."""
+    container = video_container(video) if video is not None else None
+    video_fps = container[1] if container is not None else None
     t = frames["t_s"].to_numpy(dtype=float)
     f = frames["frame"].to_numpy(dtype=float)
     if len(t) < 2:
@@ -246,23 +249,20 @@ def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str,
     as good), or ``1 / fps`` when one frame is listed (``[video] fps``, the container's rate)."""
     if not len(frames):
         return None
-    import av
-
     from vision.errors import VisionError
     from vision.video import FrameSource
 
     try:
         src = FrameSource(video, frames["frame"])
-        if src.files is not None:
-            n_video = len(src.files)
-        else:
-            with av.open(str(video)) as container:
-                stream = container.streams.video[0]
-                n_video = int(stream.frames)
-                if stream.average_rate:
-                    fps = float(stream.average_rate)
-    except (VisionError, av.FFmpegError, OSError, IndexError):   # the vision's own reading says what is wrong
+    except VisionError:   # the vision's own reading says what is wrong
         return None
+    if src.files is not None:
+        n_video = len(src.files)
+    else:
+        container = video_container(video)
+        if container is None:
+            return None
+        n_video, fps = container[0], container[1] or fps
     t = frames["t_s"].to_numpy(dtype=float)
     f = frames["frame"].to_numpy(dtype=float)
     dt = (t[-1] - t[0]) / (f[-1] - f[0]) if len(f) > 1 and f[-1] > f[0] else 1.0 / fps if fps > 0 else 0.0

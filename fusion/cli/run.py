@@ -95,7 +95,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..calibration import calibration_table, pitch_gyro_prior_deg_s, read_calibration, write_calibration
     from ..config import load_config
     from ..drive import (check_overlap, check_truth_overlap, frames_outside_warning, frames_spacing_warning,
-                         frames_unlisted_warning, read_frame_times, read_truth, video_rate)
+                         frames_unlisted_warning, read_frame_times, read_truth)
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
     from ..pipeline import frame_gap_limit_s, frame_speeds, frames_to_samples, fuse, plain_bank
@@ -180,7 +180,7 @@ def _run(args: argparse.Namespace) -> int:
     check_overlap(frame_t, imu_t, frames_name, str(files.can_log))
     for warning in (frames_outside_warning(frame_t, imu_t, frames_name),
                     frames_unlisted_warning(files.video, frames, frames_name, cfg.video.fps) if files.frames else None,
-                    frames_spacing_warning(frames, frames_name, video_rate(files.video)) if files.frames else None):
+                    frames_spacing_warning(frames, frames_name, files.video) if files.frames else None):
         if warning:
             warnings.append(warning)
 
