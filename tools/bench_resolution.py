@@ -30,8 +30,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_fusion as B  # noqa: E402
 
-BARS = {"roll": 0.15, "pitch": 0.15, "yaw": 0.1, "bank": 0.3}
-
 
 def size_arg(text: str) -> tuple[int, int]:
     try:
@@ -94,7 +92,7 @@ def main(argv=None) -> int:
     print(f"{'drive':<26} {'size':>9}   {'fused: roll':>11} {'pitch':>7} {'yaw':>7} {'bank':>7}  "
           f"{'NEES in band':>12}   {'vision: roll':>12} {'pitch':>7} {'yaw':>7}")
     for name, size, fused, vision, nees in rows:
-        f = " ".join(f"{fused[a]:6.3f}{'*' if fused[a] > BARS[a] else ' '}" for a in ("roll", "pitch", "yaw", "bank"))
+        f = " ".join(f"{fused[a]:6.3f}{'*' if fused[a] > B.BARS[a] else ' '}" for a in ("roll", "pitch", "yaw", "bank"))
         v = " ".join(f"{vision[a]:7.3f}" for a in ("roll", "pitch", "yaw"))
         print(f"{name:<26} {size:>9}   {f:>38}  {100 * nees:11.1f}%   {v:>28}")
     return 0
