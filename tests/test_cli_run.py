@@ -892,6 +892,35 @@ def test_a_lever_arm_in_millimetres_and_a_spaced_header(copy, tmp_path):
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "position_m", "metres")
 
 
+@pytest.mark.parametrize("after", ["argparse", "numpy", "fusion.config", "vision.frames"])
+def test_ctrl_c_while_the_command_loads_is_one_line(tmp_path, after):
+    """Ctrl-C while `vifusion run` loads its modules: `error: interrupted`, exit 130, no
+    traceback (a review: an interrupt in the first quarter second printed the imports'; numpy
+    and numba loaded before the command could say it). The signal is sent the moment the child
+    reports ``after`` imported (``-X importtime``), so each phase of the start-up is hit, not a
+    time that a busy machine shifts: the command line's first imports, numpy (the error types'
+    modules), the subcommands (the parser), numba (the run). Left to Python: its own start-up
+    and ``runpy`` before the program (about 25 ms here). SIGINT is put back to its default in
+    the child: a test run started with it ignored (``nohup ... &``) passes the ignoring on."""
+    import signal
+
+    p = subprocess.Popen([sys.executable, "-X", "importtime", "-m", "fusion", "run", "--out", str(tmp_path / "out"),
+                          "--quiet"], stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    said = []
+    for line in p.stderr:
+        if not line.startswith("import time:"):
+            said.append(line)
+        elif line.rsplit("|", 1)[-1].strip() == after:
+            p.send_signal(signal.SIGINT)
+            break
+    else:
+        p.wait()
+        pytest.fail(f"{after} was not imported by the run: {''.join(said)[-500:]}")
+    said += [line for line in p.stderr if not line.startswith("import time:")]
+    assert p.wait(timeout=120) == 130 and "".join(said) == "error: interrupted\n"
+
+
 def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch, capsys, tmp_path):
     """Ctrl-C inside numba's compiler comes out as RuntimeError ("no compiled object yet"), in a
     vision worker as SystemError: a review got those tracebacks on 2 of 21 interrupts. Any

@@ -2,10 +2,11 @@
 
 ``estimate(image, camera, mount, seed=None, road=..., options=...)`` for one frame,
 :class:`Estimator` for a sequence (it seeds each frame with the last), :func:`estimate_video`
-for a whole video. The estimator and its heavy dependencies (OpenCV, numba) load on first use.
+for a whole video. The estimator and its heavy dependencies (OpenCV, numba) load on first use,
+as does :mod:`vision.frames` (numba: a quarter second that a command's start-up, and a Ctrl-C
+during it, need not wait for).
 """
 
-from . import frames
 from .camera import Camera, Mount, RoadMarkings
 from .errors import VisionError
 
@@ -23,6 +24,10 @@ _LAZY = {
 
 
 def __getattr__(name):
+    if name == "frames":
+        import importlib
+
+        return importlib.import_module(".frames", __name__)
     if name in _LAZY:
         import importlib
 

@@ -7,16 +7,27 @@ user can fix (bad input, bad config) are printed as one line ``error: ...`` with
 
 from __future__ import annotations
 
-import argparse
-import errno
-import gc
-import importlib
-import os
-import signal
 import sys
-import threading
-import time
-from pathlib import Path
+
+try:   # numpy loads here (0.15 s): an interrupt during the imports is said as any other (main's)
+    import argparse
+    import errno
+    import gc
+    import importlib
+    import os
+    import signal
+    import threading
+    import time
+    from pathlib import Path
+
+    from imu.errors import ImuError
+    from vision.errors import VisionError
+
+    from ..errors import FusionError
+    from ..files import write_atomically
+except KeyboardInterrupt:
+    print("error: interrupted", file=sys.stderr)
+    raise SystemExit(130) from None
 
 
 def _process_started_s() -> float:
@@ -38,11 +49,6 @@ def _process_started_s() -> float:
 #: When the process started: the start of a run's fixed costs (interpreter and imports included).
 STARTED_S = _process_started_s()
 
-from imu.errors import ImuError
-from vision.errors import VisionError
-
-from ..errors import FusionError
-from ..files import write_atomically
 
 __all__ = ["main", "USER_ERRORS"]
 
