@@ -123,8 +123,11 @@ def _one_line(text: str) -> str:
 class _Lines:
     """Line iterator handed to python-can's text readers: counts lines and replays the header."""
 
-    def __init__(self, f: Any) -> None:
+    def __init__(self, f: Any, asc: bool = False) -> None:
         self.f = f
+        self.asc = asc                  # look for frame lines the ASC reader passes over
+        self.pending = 0                # an ASC frame line read, its message not yet seen
+        self.dropped: list[int] = []    # ASC frame lines the reader passed over (line numbers)
         self.line_no = 0
         self.chars = 0
         self.replay: deque[str] = deque()
@@ -148,6 +151,10 @@ class _Lines:
             line += "\n"
         self.line_no += 1
         self.chars += len(line)
+        if self.asc:
+            if self.pending:
+                self.dropped.append(self.pending)
+            self.pending = self.line_no if _asc_frame_like(line) else 0
         if self.recording:
             self.recorded.append(line)
         if line.strip():
@@ -156,6 +163,20 @@ class _Lines:
 
     def close(self) -> None:  # python-can's reader.stop() closes its file; we close the real one
         pass
+
+
+def _asc_frame_like(line: str) -> bool:
+    """Whether an ASC line has the form of a CAN frame whatever its fields hold: ``Rx`` or ``Tx``
+    followed by ``d`` (data) or ``r`` (remote), ``time CANFD ...``, ``time channel
+    ErrorFrame``. python-can's reader passes over a frame line its pattern does not match (a
+    decimal comma in the time, a stray character) as it does over comments and other events
+    (LIN, statistics, chip states), without a word."""
+    tokens = line.split(None, 7)
+    if len(tokens) > 1 and tokens[1].upper() == "CANFD":
+        return True
+    if any(t in ("Rx", "Tx") and nxt in ("d", "r") for t, nxt in zip(tokens[1:6], tokens[2:7])):
+        return True
+    return len(tokens) > 2 and tokens[0][:1].isdigit() and tokens[1].isdigit() and tokens[2].lower() == "errorframe"
 
 
 class _CountWarnings(logging.Handler):
@@ -247,7 +268,7 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
     opener = (lambda: gzip.open(path, "rt", encoding="utf-8", errors="replace")) if gz else \
         (lambda: open(path, "r", encoding="utf-8", errors="replace", newline=None))
     with opener() as f:
-        feed = _Lines(f)
+        feed = _Lines(f, asc=state.fmt == ".asc")
         state.position = (lambda: feed.chars) if not gz else None
         state.line = lambda: feed.line_no
         first = True
@@ -262,10 +283,12 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                     feed.recording = False
                     header = feed.recorded[:-1]
                     first = False
-                    if _whole(msg, feed, state.fmt):
+                    feed.pending = 0
+                    if _whole(msg, feed, state.fmt) and _asc_bytes_whole(msg, feed, state, header):
                         yield msg
                 for msg in it:
-                    if _whole(msg, feed, state.fmt):
+                    feed.pending = 0
+                    if _whole(msg, feed, state.fmt) and _asc_bytes_whole(msg, feed, state, header):
                         yield msg
                 _check_end(feed, header, state)
                 return
@@ -276,6 +299,7 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                 state.stopped(f"line {feed.line_no}: file read failed: {type(e).__name__}: {e}")
                 return
             except Exception as e:  # noqa: BLE001 - python-can's text parsers raise many types
+                feed.pending = 0      # counted here
                 if feed.unterminated:  # the last line, without line end, does not parse: cut off
                     feed.cut = True
                     _check_end(feed, header, state)
@@ -325,6 +349,28 @@ def _whole(msg: can.Message, feed: _Lines, fmt: str = "") -> bool:
     return not cut
 
 
+def _asc_bytes_whole(msg: can.Message, feed: _Lines, state: ReadState, header: list[str]) -> bool:
+    """False (the line skipped and counted unreadable) for an ASC frame line whose data bytes
+    are not each two hex digits, as every ASC writer puts them: python-can's reader takes a lone
+    digit for a whole byte, so a line with a character lost mid-file read as a frame with its
+    bytes shifted (a review). The last line without line end is :func:`_whole`'s to judge (cut
+    off), a log in ``base dec`` is left alone."""
+    if not feed.asc or feed.unterminated or msg.is_remote_frame or msg.is_error_frame or not msg.dlc:
+        return True
+    tokens = feed.last.split()
+    end = _asc_data_end(tokens)
+    start = end - len(msg.data)
+    if start < 0 or all(len(t) == 2 for t in tokens[start:end]):
+        return True
+    if any(h.split()[:2] == ["base", "dec"] for h in header):
+        return True
+    state.bad_lines += 1
+    if state.bad_lines <= 5:
+        state.problem(f"line {feed.line_no}: .asc frame line with a data byte that is not two hex digits skipped: "
+                      f"{feed.last.strip()[:80]}")
+    return False
+
+
 def _asc_data_end(tokens: list[str]) -> int:
     """Index of the first token after the data bytes of an ASC frame line, as python-can's reader
     takes them (classic: ``time channel id dir d dlc data...``; CAN FD: ``time CANFD channel dir
@@ -348,6 +394,21 @@ def _check_end(feed: _Lines, header: list[str], state: ReadState) -> None:
     complete (a review)."""
     if feed.unterminated and state.warning_line == feed.line_no:
         feed.cut = True
+    if feed.pending:
+        feed.dropped.append(feed.pending)
+        feed.pending = 0
+    if feed.unterminated and feed.dropped and feed.dropped[-1] == feed.line_no:
+        feed.dropped.pop()     # the last line, passed over: cut off
+        feed.cut = True
+    if feed.dropped:
+        state.bad_lines += len(feed.dropped)
+        more = len(feed.dropped) - 1
+        lines = ", ".join(str(n) for n in feed.dropped[1:6]) + (" ..." if more > 5 else "")
+        state.problem(f"line {feed.dropped[0]}: .asc frame line the reader does not take (a decimal comma, a stray "
+                      f"character) skipped" + (f"; {more} more (line {lines})" if more else ""))
+        if len(feed.dropped) > 50 and state.bad_lines > _MAX_BAD_LINES_FRACTION * max(feed.line_no, 1):
+            raise DecodeError(f"{state.path}: not a readable .asc log ({state.bad_lines} of {feed.line_no} lines "
+                              f"unreadable; first: {state.problems[-1]})")
     if feed.cut:
         state.stopped(f"line {feed.line_no}: the file ends inside it (no line end, frame not whole): "
                       "truncated, that line not read")

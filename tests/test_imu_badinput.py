@@ -59,13 +59,15 @@ def test_WRONG_LENGTH_frames_counted_rest_decoded(tmp_path, clean):
     assert table["fresh_gyro_x"].all() and len(table) == len(ref)
 
 
-@pytest.mark.parametrize("suffix, counted", [(".asc", False), (".log", True), (".trc", False), (".csv", True)])
+@pytest.mark.parametrize("suffix, counted", [(".asc", True), (".log", True), (".trc", False), (".csv", True)])
 def test_CORRUPT_LINE_MIDWAY_skipped_and_counted(tmp_path, clean, suffix, counted):
     """One garbled IMU_RATE line in the middle of a text log: that sample is lost, the reader goes on
     after it with the header state intact, and every other sample is decoded as in the clean log.
-    candump and CSV lines that python-can cannot parse are counted as bad lines (naming the line);
-    python-can's ASC and TRC readers pass over lines they do not recognise, so there the loss shows
-    as the orphaned IMU_ACC frame, counted as unaligned."""
+    candump and CSV lines that python-can cannot parse are counted as bad lines (naming the line),
+    as are ASC lines in the form of a frame that its reader passes over (it does so without a
+    word for lines it does not recognise; a review); python-can's TRC reader passes over them
+    too, so there the loss shows only as the orphaned IMU_ACC frame, counted as unaligned (as it
+    does in the others)."""
     _, _, msgs, _, _ = clean
     path = _write(msgs, tmp_path / f"x{suffix}")
     ref, _ = read_log(path, sim_mapping(), MOUNT_FRD)
@@ -85,6 +87,40 @@ def test_CORRUPT_LINE_MIDWAY_skipped_and_counted(tmp_path, clean, suffix, counte
     assert len(merged) == len(table)
     assert np.array_equal(merged["gyro_x_rad_s"], merged["gyro_x_rad_s_got"])
     assert np.array_equal(merged["accel_y_m_s2"], merged["accel_y_m_s2_got"])
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (lambda ln: ln.replace(".", ",", 1), "decimal comma"),                    # CANoe in a German locale
+    (lambda ln: ln.replace(".", ".x", 1), "decimal comma"),                   # a stray character
+    (lambda ln: ln[:-4] + ln[-3:], "not two hex digits"),                     # a lost digit: '7' for '07'
+])
+def test_ASC_FRAME_LINES_the_reader_passes_over_are_counted(tmp_path, clean, edit, problem):
+    """python-can's ASC reader passes over a frame line its pattern does not match without a
+    word, and takes a lone hex digit for a whole byte: a review found a log with such lines
+    mid-file read as clean, the corrupt line's frame read with its bytes shifted. Each is now a
+    counted, named, skipped line, and the rest is read as in the clean log; a log all of whose
+    frame lines are so (a decimal comma throughout) is a one-line error naming it, not an empty
+    read."""
+    _, _, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / "x.asc")
+    ref, _ = read_log(path, sim_mapping(), MOUNT_FRD)
+    lines = path.read_text().splitlines(keepends=True)
+    rate = [i for i, ln in enumerate(lines) if " 174 " in ln]
+    victim = rate[len(rate) // 2]
+    lines[victim] = edit(lines[victim].rstrip("\n")) + "\n"
+    path.write_text("".join(lines))
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert summary.bad_lines == 1 and summary.complete
+    assert f"line {victim + 1}" in summary.problems[0] and problem in summary.problems[0]
+    assert len(table) == len(ref) - 1, "exactly the corrupt line's sample is missing"
+    merged = ref.merge(table, on="t_s", suffixes=("", "_got"))
+    assert np.array_equal(merged["gyro_z_rad_s"], merged["gyro_z_rad_s_got"])
+    # the whole file in a decimal-comma locale
+    lines = [edit(ln.rstrip("\n")) + "\n" if (" Rx " in ln and "," not in ln) else ln for ln in lines]
+    path.write_text("".join(lines))
+    with pytest.raises(DecodeError) as e:
+        read_log(path, sim_mapping(), MOUNT_FRD)
+    assert problem in _one_line(e)
 
 
 def test_TRUNCATED_BLF_keeps_what_came_before(tmp_path, clean):
