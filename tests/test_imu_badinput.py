@@ -92,6 +92,7 @@ def test_CORRUPT_LINE_MIDWAY_skipped_and_counted(tmp_path, clean, suffix, counte
 @pytest.mark.parametrize("edit, problem", [
     (lambda ln: ln.replace(".", ",", 1), "decimal comma"),                    # CANoe in a German locale
     (lambda ln: ln.replace(".", ".x", 1), "decimal comma"),                   # a stray character
+    (lambda ln: " nan " + ln.split(None, 1)[1], "decimal comma"),             # a time written as nan
     (lambda ln: ln[:-4] + ln[-3:], "not two hex digits"),                     # a lost digit: '7' for '07'
 ])
 def test_ASC_FRAME_LINES_the_reader_passes_over_are_counted(tmp_path, clean, edit, problem):
