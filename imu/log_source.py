@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 from itertools import islice
 from operator import attrgetter
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 import can
 import numpy as np
@@ -434,7 +434,7 @@ def _iter_binary(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[
         state.position = f.tell
     try:
         try:
-            yield from reader
+            yield from (_without_zeroed_records(reader, state) if state.fmt == ".mf4" else reader)
         except Exception as e:  # noqa: BLE001
             state.stopped(f"reading stopped after {state.messages} messages: {type(e).__name__}: "
                           f"{' '.join(str(e).split())[:200] or 'corrupt data'}")
@@ -446,6 +446,43 @@ def _iter_binary(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[
             reader.stop()
         except Exception:  # noqa: BLE001 - closing a half-read file must not hide the real outcome
             pass
+
+
+def _zero_record(msg: can.Message) -> bool:
+    return not msg.arbitration_id and not msg.dlc and not msg.is_error_frame and not msg.is_remote_frame
+
+
+def _without_zeroed_records(reader: Iterable[can.Message], state: ReadState) -> Iterator[can.Message]:
+    """An MF4 reader's messages without the records of a stretch of the file that was zeroed
+    (a damaged disk or copy): asammdf reads them as frames of ID 0 without data, all at one
+    time, without a complaint, and a review found such a log read as complete, its loss only a
+    gap and an unknown ID 0x0 in the summary. Two or more such records at one time stamp are
+    dropped and counted as a problem (one alone is let through: ID 0 is a valid CAN ID)."""
+    held: list[can.Message] = []
+    dropped, after, last_t = 0, None, None
+    for msg in reader:
+        if _zero_record(msg) and (not held or msg.timestamp == held[0].timestamp):
+            held.append(msg)
+            continue
+        if len(held) > 1:
+            dropped += len(held)
+            after = last_t if after is None else after
+        else:
+            yield from held
+        held = [msg] if _zero_record(msg) else []
+        if not held:
+            last_t = msg.timestamp
+            yield msg
+    if len(held) > 1:
+        dropped += len(held)
+        after = last_t if after is None else after
+    else:
+        yield from held
+    if dropped:
+        state.bad_lines += dropped
+        where = "at its start" if after is None else f"the first after the frame at {after:.3f} s"
+        state.problem(f"{dropped} zeroed records (ID 0, no data, all at one time) skipped, {where}: "
+                      "the file is damaged there")
 
 
 @dataclass

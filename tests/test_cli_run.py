@@ -877,6 +877,23 @@ def test_inputs_a_review_found_worded_badly(copy, tmp_path, case):
         assert r.returncode == 0, r.stderr
 
 
+def test_unreadable_log_lines_are_said_with_the_first_one(copy, tmp_path):
+    """A CAN log with a corrupt frame line mid-file (an ASC line with a decimal comma, which
+    python-can's reader passes over without a word): the run goes on, and its warning says how
+    many lines were skipped and which was the first, and why."""
+    asc = copy / "can.asc"
+    lines = asc.read_text().splitlines(keepends=True)
+    frames = [i for i, ln in enumerate(lines) if " Rx " in ln]
+    victim = frames[len(frames) // 2]
+    lines[victim] = lines[victim].replace(".", ",", 1)
+    asc.write_text("".join(lines))
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "out" / "report" / "summary.json").read_text())
+    said = [w for w in summary["warnings"] if "unreadable lines skipped" in w]
+    assert len(said) == 1 and f"line {victim + 1}: .asc frame line" in said[0] and "decimal comma" in said[0], said
+
+
 def test_a_lever_arm_in_millimetres_and_a_spaced_header(copy, tmp_path):
     """`[imu] position_m = [0, 0, 500]` (millimetres): a one-line error naming the key (a review
     found 1e300 accepted, every gravity update then refused); `frame, t_s` as a hand-written

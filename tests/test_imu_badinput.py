@@ -124,6 +124,34 @@ def test_ASC_FRAME_LINES_the_reader_passes_over_are_counted(tmp_path, clean, edi
     assert problem in _one_line(e)
 
 
+@pytest.mark.parametrize("start, stop", [(0.6, 0.8), (0.3, 0.32)])
+def test_MF4_ZEROED_STRETCH_is_counted_and_said(tmp_path, clean, start, stop):
+    """An uncompressed MF4 log with a stretch of its bytes zeroed (a damaged disk or copy):
+    asammdf reads the stretch as frames of ID 0 without data, all at one time, without a
+    complaint; a review found such a log read as complete with no problem, its loss visible only
+    as a gap and an unknown ID 0x0. The zeroed records are skipped, counted and said with where
+    they start; the frames around them are decoded as in the clean log."""
+    _, _, msgs, _, _ = clean
+    path = tmp_path / "x.mf4"
+    with can.io.MF4Writer(str(path), compression_level=0) as w:
+        for m in msgs:
+            w.on_message_received(m)
+    ref, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert summary.bad_lines == 0 and not summary.problems
+    raw = bytearray(path.read_bytes())
+    lo, hi = int(start * len(raw)), int(stop * len(raw))
+    raw[lo:hi] = bytes(hi - lo)
+    path.write_bytes(bytes(raw))
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    # (a record the stretch's edge cuts through keeps its own time: one such may pass as ID 0)
+    assert summary.bad_lines > 10 and summary.unknown_ids.get("0x0", 0) <= 2
+    assert "zeroed records" in summary.problems[0] and "damaged" in summary.problems[0]
+    assert 0 < len(table) < len(ref)
+    merged = ref.merge(table, on="t_s", suffixes=("", "_got"))
+    assert len(merged) == len(table)
+    assert np.array_equal(merged["gyro_x_rad_s"], merged["gyro_x_rad_s_got"], equal_nan=True)
+
+
 def test_TRUNCATED_BLF_keeps_what_came_before(tmp_path, clean):
     imu, offset, msgs, _, _ = clean
     path = _write(msgs, tmp_path / "x.blf")

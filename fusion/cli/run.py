@@ -282,8 +282,10 @@ def _can_problems(summary, log) -> list[str]:
             listed = ", ".join(f"{k.replace('_', ' ')} {n}" for k, n in counts.items())
             out.append(f"{log}: {s.name} ({s.frame_id}): {sum(counts.values())} frames not used ({listed}; "
                        "vifusion can lists them)")
-    if summary.bad_lines:
-        out.append(f"{log}: {summary.bad_lines} unreadable lines skipped")
+    if summary.bad_lines:   # with the reader's first word on them (which line, what was wrong)
+        first = next((p for p in summary.problems if "skipped" in p), "")
+        out.append(f"{log}: {summary.bad_lines} unreadable {'records' if log.suffix.lower() == '.mf4' else 'lines'} "
+                   f"skipped" + (f" ({first})" if first else ""))
     return out
 
 
