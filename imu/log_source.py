@@ -29,6 +29,7 @@ import gc
 import gzip
 import logging
 import math
+import re
 import string
 import sys
 import warnings
@@ -126,7 +127,6 @@ class _Lines:
     def __init__(self, f: Any, asc: bool = False) -> None:
         self.f = f
         self.asc = asc                  # look for frame lines the ASC reader passes over
-        self.pending = 0                # an ASC frame line read, its message not yet seen
         self.dropped: list[int] = []    # ASC frame lines the reader passed over (line numbers)
         self.line_no = 0
         self.chars = 0
@@ -151,10 +151,8 @@ class _Lines:
             line += "\n"
         self.line_no += 1
         self.chars += len(line)
-        if self.asc:
-            if self.pending:
-                self.dropped.append(self.pending)
-            self.pending = self.line_no if _asc_frame_like(line) else 0
+        if self.asc and not ASC_MESSAGE_REGEX.match(line.lstrip()) and _asc_frame_like(line):
+            self.dropped.append(self.line_no)
         if self.recording:
             self.recorded.append(line)
         if line.strip():
@@ -165,18 +163,23 @@ class _Lines:
         pass
 
 
+#: The pattern by which python-can's ASC reader takes a line for a frame (its own, where it has
+#: it under this name: python-can >= 4.4 does).
+ASC_MESSAGE_REGEX = getattr(can.io.asc, "ASC_MESSAGE_REGEX", None) or re.compile(
+    r"\d+\.\d+\s+(\d+\s+(\w+\s+(Tx|Rx)|ErrorFrame)|CANFD)", re.ASCII | re.IGNORECASE)
+
+#: The form of an ASC frame line, whatever its fields hold (:func:`_asc_frame_like`).
+_ASC_FRAME_LIKE = re.compile(r"\s(?:Rx|Tx)\s+[dr]\s|^\s*\S+\s+CANFD\s|^\s*\d\S*\s+\d+\s+errorframe", re.IGNORECASE)
+
+
 def _asc_frame_like(line: str) -> bool:
     """Whether an ASC line has the form of a CAN frame whatever its fields hold: ``Rx`` or ``Tx``
     followed by ``d`` (data) or ``r`` (remote), ``time CANFD ...``, ``time channel
-    ErrorFrame``. python-can's reader passes over a frame line its pattern does not match (a
-    decimal comma in the time, a stray character) as it does over comments and other events
-    (LIN, statistics, chip states), without a word."""
-    tokens = line.split(None, 7)
-    if len(tokens) > 1 and tokens[1].upper() == "CANFD":
-        return True
-    if any(t in ("Rx", "Tx") and nxt in ("d", "r") for t, nxt in zip(tokens[1:6], tokens[2:7])):
-        return True
-    return len(tokens) > 2 and tokens[0][:1].isdigit() and tokens[1].isdigit() and tokens[2].lower() == "errorframe"
+    ErrorFrame``. python-can's reader passes over a line its pattern (``ASC_MESSAGE_REGEX``)
+    does not match, as it does over comments and other events (LIN, statistics, chip states),
+    without a word: such a line of this form (a decimal comma in the time, a stray character)
+    is a frame lost."""
+    return _ASC_FRAME_LIKE.search(line) is not None
 
 
 class _CountWarnings(logging.Handler):
@@ -283,11 +286,9 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                     feed.recording = False
                     header = feed.recorded[:-1]
                     first = False
-                    feed.pending = 0
                     if _whole(msg, feed, state.fmt) and _asc_bytes_whole(msg, feed, state, header):
                         yield msg
                 for msg in it:
-                    feed.pending = 0
                     if _whole(msg, feed, state.fmt) and _asc_bytes_whole(msg, feed, state, header):
                         yield msg
                 _check_end(feed, header, state)
@@ -299,7 +300,6 @@ def _iter_text(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[ca
                 state.stopped(f"line {feed.line_no}: file read failed: {type(e).__name__}: {e}")
                 return
             except Exception as e:  # noqa: BLE001 - python-can's text parsers raise many types
-                feed.pending = 0      # counted here
                 if feed.unterminated:  # the last line, without line end, does not parse: cut off
                     feed.cut = True
                     _check_end(feed, header, state)
@@ -349,6 +349,11 @@ def _whole(msg: can.Message, feed: _Lines, fmt: str = "") -> bool:
     return not cut
 
 
+#: A classic ASC data line with ``n`` data bytes of two hex digits each, by ``n``.
+_ASC_WHOLE_BYTES = [re.compile(r"[RT]x +d +[0-9A-Fa-f]{1,2}" + r" +[0-9A-Fa-f]{2}" * n + r"\s")
+                    for n in range(9)]
+
+
 def _asc_bytes_whole(msg: can.Message, feed: _Lines, state: ReadState, header: list[str]) -> bool:
     """False (the line skipped and counted unreadable) for an ASC frame line whose data bytes
     are not each two hex digits, as every ASC writer puts them: python-can's reader takes a lone
@@ -357,6 +362,8 @@ def _asc_bytes_whole(msg: can.Message, feed: _Lines, state: ReadState, header: l
     off), a log in ``base dec`` is left alone."""
     if not feed.asc or feed.unterminated or msg.is_remote_frame or msg.is_error_frame or not msg.dlc:
         return True
+    if len(msg.data) <= 8 and _ASC_WHOLE_BYTES[len(msg.data)].search(feed.last) is not None:
+        return True    # (the common line, without splitting it)
     tokens = feed.last.split()
     end = _asc_data_end(tokens)
     start = end - len(msg.data)
@@ -394,9 +401,6 @@ def _check_end(feed: _Lines, header: list[str], state: ReadState) -> None:
     complete (a review)."""
     if feed.unterminated and state.warning_line == feed.line_no:
         feed.cut = True
-    if feed.pending:
-        feed.dropped.append(feed.pending)
-        feed.pending = 0
     if feed.unterminated and feed.dropped and feed.dropped[-1] == feed.line_no:
         feed.dropped.pop()     # the last line, passed over: cut off
         feed.cut = True
