@@ -563,6 +563,84 @@ def test_a_debug_video_inside_out_is_refused(drive, tmp_path):
     assert (out / "fused.csv").is_file()
 
 
+def test_campaign_refuses_before_it_replaces_anything(drive, tmp_path):
+    """What a review found a campaign deleting or mislabelling (each refused with one line, exit
+    2, before anything in --out is touched): a --calibration that is not one (the earlier
+    campaign's drive folders were deleted first, and every drive then 'skipped' for it); a
+    campaign.csv or campaign.parquet in --out that no campaign wrote (deleted, a folder of that
+    name with it); a drive named X.partial beside one named X (X's run writes into X.partial
+    first: the first drive's output was lost); the root as --out. A run's warnings on stderr
+    name their drive."""
+    out = tmp_path / "camp"
+    r = vifusion("campaign", drive, "--out", out, "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    assert "warning: drive: vision valid on 11 of 30 frames" in r.stderr, r.stderr
+    before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
+    bogus = tmp_path / "bogus.toml"
+    bogus.write_text("x\n")
+    one_line_error(vifusion("campaign", drive, "--out", out, "--calibration", bogus), "bogus.toml")
+    one_line_error(vifusion("campaign", drive, "--out", out, "--calibration", tmp_path / "none.toml"), "none.toml")
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "campaign.csv").write_text("my notes\n")
+    one_line_error(vifusion("campaign", drive, "--out", mine), "campaign.csv", "not a campaign's table")
+    (mine / "campaign.csv").unlink()
+    (mine / "campaign.parquet").mkdir()
+    (mine / "campaign.parquet" / "keep.txt").write_text("keep")
+    one_line_error(vifusion("campaign", drive, "--out", mine), "campaign.parquet", "not a campaign's table")
+    assert (mine / "campaign.parquet" / "keep.txt").is_file() and not (mine / "drive").exists()
+    twin = tmp_path / "e.partial"
+    shutil.copytree(drive, twin)
+    (tmp_path / "e").symlink_to(drive, target_is_directory=True)
+    one_line_error(vifusion("campaign", twin, tmp_path / "e", "--out", tmp_path / "c2"), "e.partial")
+    one_line_error(vifusion("campaign", drive, "--out", "/"), "root")
+    assert not (tmp_path / "c2").exists() and not Path("/drive").exists()
+
+
+def test_campaign_interrupted_after_a_drive_finished_says_it_ran(drive, tmp_path, monkeypatch, capsys):
+    """Ctrl-C after a drive's folder is in place but before its figures are read: the row says
+    the drive ran (it said 'not run: interrupted' beside a complete folder, a review). A drive
+    interrupted while it ran has the calibration it started from in its row (it was empty)."""
+    from fusion import cli
+    from fusion.cli import campaign
+
+    second = tmp_path / "second"
+    shutil.copytree(drive, second)
+    real, calls = campaign._drive_row, []
+
+    def interrupted_on_the_second(fused, out):
+        calls.append(out)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(fused, out)
+
+    monkeypatch.setattr(campaign, "_drive_row", interrupted_on_the_second)
+    out = tmp_path / "camp"
+    assert cli.main(["campaign", str(drive), str(second), str(drive.parent / "third"), "--out", str(out), "--quiet",
+                     "--no-report"]) == 130
+    table = pd.read_csv(out / "campaign.csv")
+    assert list(table["status"]) == ["ok", "ok (interrupted before its figures were read)", "not run: interrupted"]
+    assert (out / "second" / "fused.csv").is_file()
+    assert table["calibration_from"].fillna("").tolist()[1:] == [str(out / "drive" / "calibration.toml"), ""]
+    # interrupted while the second drive ran: its row has the calibration it started from
+    calls.clear()
+    monkeypatch.setattr(campaign, "_drive_row", real)
+    from fusion.cli import run as run_cmd
+    started = run_cmd.run
+
+    def interrupted_in_the_second(args):
+        if args.drive == second:
+            raise KeyboardInterrupt
+        return started(args)
+
+    monkeypatch.setattr(run_cmd, "run", interrupted_in_the_second)
+    assert cli.main(["campaign", str(drive), str(second), "--out", str(out), "--quiet", "--no-report"]) == 130
+    table = pd.read_csv(out / "campaign.csv")
+    assert list(table["status"]) == ["ok", "not run: interrupted"]
+    assert table["calibration_from"].iloc[1] == str(out / "drive" / "calibration.toml")
+
+
 def test_campaign_drives_given_as_links_keep_their_names(drive, tmp_path):
     """Two links to drive folders of the same name are two drives (their link names)."""
     for name in ("day1", "day2"):

@@ -11,10 +11,11 @@ the last good calibration; the exit status is 2 when no drive succeeded.
 
 A campaign into a folder an earlier campaign wrote replaces it: the old table and the old output
 folders of this campaign's drives are removed before the first drive (a folder holding anything
-a run did not write is refused first; the folder holding ``--calibration`` is kept until its
-drive replaces it), so that no drive folder outlives the row that describes it. The table is
-written after every drive, the drives not yet run listed as ``not run``; an interrupt (Ctrl-C)
-leaves it so, with the interrupted drive and the rest ``not run: interrupted``.
+a run did not write, or a ``campaign.csv`` / ``.parquet`` that is not a campaign's table, is
+refused first; ``--calibration`` is read first, so it may lie in one of them), so that no drive
+folder outlives the row that describes it. The table is written after every drive, the drives
+not yet run listed as ``not run``; an interrupt (Ctrl-C) leaves it so, with the interrupted
+drive and the rest ``not run: interrupted``. A run's warnings on stderr name their drive.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..calibration import read_calibration
     from ..errors import InputError
     from . import run as run_cmd
 
@@ -62,10 +64,16 @@ def run(args: argparse.Namespace) -> int:
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise InputError(f"two drives named {dup[0]}: their outputs would share {args.out / dup[0]}")
+    partial = [n for n in names if n.endswith(".partial") and n[: -len(".partial")] in names]
+    if partial:   # the run of drive X writes into OUT/X.partial first
+        raise InputError(f"a drive named {partial[0]} beside one named {partial[0][:-len('.partial')]}: the second's "
+                         "run writes into the first's output folder first")
     clash = [n for n in names if n in ("campaign.csv", "campaign.parquet")]
     if clash:   # said now, not after every drive
         raise InputError(f"a drive named {clash[0]}: its output folder would be the campaign's table")
     out_dir = args.out.resolve()
+    if not out_dir.name:
+        raise InputError(f"--out {args.out}: the root is not an output folder")
     drives = [Path(d).resolve() for d in args.drives]
     inside = [d for d, r in zip(args.drives, drives) if out_dir == r or r in out_dir.parents]
     if inside:   # the campaign's folders and tables would be mixed into a drive's own files
@@ -78,24 +86,29 @@ def run(args: argparse.Namespace) -> int:
                              f"{clash[0]}: give the campaign a folder of its own")
     for name in names:      # refused before any work, not on the drive's turn
         run_cmd.check_out(args.out / name)
+    for table in ("campaign.csv", "campaign.parquet"):
+        _check_old_table(args.out / table)
+    # read before anything is replaced: a bad file is the campaign's error, not every drive's,
+    # and it may lie in an earlier campaign's drive folder, removed below
+    cal = read_calibration(args.calibration) if args.calibration is not None else None
     args.out.mkdir(parents=True, exist_ok=True)
-    keep = Path(os.path.abspath(args.calibration)).parents if args.calibration is not None else ()
     for stale in [args.out / "campaign.csv", args.out / "campaign.parquet",
                   *(args.out / n for n in names), *(args.out / (n + ".partial") for n in names)]:
-        if Path(os.path.abspath(stale)) in keep:
-            continue    # --calibration from an earlier campaign's drive: read by the first drive, replaced later
         if stale.is_dir():
             shutil.rmtree(stale)
         elif stale.exists():
             stale.unlink()
-    calibration = args.calibration
+    calibration = (args.calibration, cal) if cal is not None else None
     rows = []
+    i, current = 0, calibration
     try:
-        for drive, name in zip(args.drives, names):
+        for i, (drive, name) in enumerate(zip(args.drives, names)):
+            current = calibration
             calibration = _one_drive(args, drive, name, calibration, rows)
             write_tables(_table(rows, args.drives, "not run"), args.out / "campaign")
-    except KeyboardInterrupt:
-        write_tables(_table(rows, args.drives, "not run: interrupted"), args.out / "campaign")
+    except KeyboardInterrupt:   # the drive interrupted while it ran keeps the calibration it started from
+        write_tables(_table(rows, args.drives, "not run: interrupted", current if len(rows) == i else None),
+                     args.out / "campaign")
         raise
     table = _table(rows, args.drives, "not run")
     ok = int((table["status"] == "ok").sum())
@@ -106,17 +119,42 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _table(rows: list[dict], drives: list[Path], pending: str):
-    """The campaign's table: the rows of the drives run so far, then the rest as ``pending``."""
+def _check_old_table(path: Path) -> None:
+    """A ``campaign.csv`` or ``.parquet`` already in ``--out`` is replaced only if it is a
+    campaign's table (a review found a user's file, and a folder of that name, deleted)."""
+    from ..errors import InputError
+
+    if not path.exists():
+        return
+    ours = False
+    if path.is_file():
+        with contextlib.suppress(OSError, ValueError, ImportError):
+            if path.suffix == ".csv":
+                with open(path, encoding="utf-8", errors="replace") as f:
+                    ours = f.readline().startswith("drive,calibration_from,status")
+            else:
+                import pyarrow.parquet as pq
+
+                ours = {"drive", "calibration_from", "status"} <= set(pq.read_schema(path).names)
+    if not ours:
+        raise InputError(f"--out {path.parent} holds {path.name}, which is not a campaign's table: "
+                         "give a new or empty folder")
+
+
+def _table(rows: list[dict], drives: list[Path], pending: str, calibration=None):
+    """The campaign's table: the rows of the drives run so far, then the rest as ``pending``,
+    the first of them with ``calibration`` (the one it started from, when it was running)."""
     import pandas as pd
 
-    return pd.DataFrame(rows + [{"drive": str(d), "calibration_from": "", "status": pending}
-                                for d in drives[len(rows):]])
+    rest = [{"drive": str(d), "calibration_from": "", "status": pending} for d in drives[len(rows):]]
+    if rest and calibration:
+        rest[0]["calibration_from"] = str(calibration[0])
+    return pd.DataFrame(rows + rest)
 
 
 def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, rows: list[dict]):
     """Run one drive into ``args.out / name``, append its row; the calibration the next drive
-    starts from."""
+    starts from. A calibration is ``(path, its [fusion] keys)``: read once, when it is made."""
     import pandas as pd
 
     from ..calibration import read_calibration
@@ -126,11 +164,12 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
     out = args.out / name
     run_args = argparse.Namespace(
         drive=drive, video=None, frames=None, can=None, dbc=None, config=None, truth=None, out=out,
-        smooth=args.smooth, calibration=calibration, estimate_time_offset=False, debug_video=None,
+        smooth=args.smooth, calibration=calibration[0] if calibration else None,
+        calibration_table=calibration[1] if calibration else None, estimate_time_offset=False, debug_video=None,
         no_report=args.no_report, workers=args.workers, quiet=args.quiet, debug=False,
-        started_s=time.perf_counter())
-    row = {"drive": str(drive), "calibration_from": str(calibration) if calibration else ""}
-    print(f"== {drive}" + (f" (from {calibration})" if calibration else ""))
+        started_s=time.perf_counter(), warning_prefix=f"{name}: ")
+    row = {"drive": str(drive), "calibration_from": str(calibration[0]) if calibration else ""}
+    print(f"== {drive}" + (f" (from {calibration[0]})" if calibration else ""))
     try:
         log = io.StringIO()
         with contextlib.redirect_stdout(log):
@@ -142,8 +181,12 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
         print(f"warning: {drive} skipped: {reason}", file=sys.stderr)
         rows.append({**row, "status": f"skipped: {reason}"})
         return calibration
-    fused = pd.read_csv(out / "fused.csv")
-    row.update(status="ok", **_drive_row(fused, out))
+    try:
+        fused = pd.read_csv(out / "fused.csv")
+        row.update(status="ok", **_drive_row(fused, out))
+    except KeyboardInterrupt:   # the drive's folder is complete: its row says so
+        rows.append({**row, "status": "ok (interrupted before its figures were read)"})
+        raise
     rows.append(row)
     line = (f"   bank mean {row['bank_mean_deg']:+.2f} deg, |max| {row['bank_abs_max_deg']:.2f} deg"
             + (f", RMSE vs truth {row['bank_rmse_deg']:.3f} deg" if "bank_rmse_deg" in row else ""))
@@ -152,10 +195,10 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
         line += (f"; lateral accelerometer bias {cal['accel_bias_m_s2'][1]:+.4f} "
                  f"+- {cal['accel_bias_sigma_m_s2'][1]:.4f} m/s^2")
         if not args.no_carry:
-            calibration = out / "calibration.toml"
+            calibration = (out / "calibration.toml", cal)
     else:
         print(f"warning: {drive} wrote no calibration.toml: the next drive starts from "
-              f"{calibration or 'the config'}", file=sys.stderr)
+              f"{calibration[0] if calibration else 'the config'}", file=sys.stderr)
     print(line)
     return calibration
 

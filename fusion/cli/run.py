@@ -115,8 +115,9 @@ def _run(args: argparse.Namespace) -> int:
     mapping = cfg.can if files.dbc is None else type(cfg.can)(**{**cfg.can.__dict__, "dbc_path": files.dbc})
     vision_opts = options_from_table(cfg.extra.get("vision"), str(files.config))
     fusion_table, fusion_source = cfg.extra.get("fusion") or {}, str(files.config)
-    if args.calibration is not None:
-        fusion_table = {**fusion_table, **read_calibration(args.calibration)}
+    if args.calibration is not None:   # (a campaign reads it before it replaces anything)
+        cal = getattr(args, "calibration_table", None) or read_calibration(args.calibration)
+        fusion_table = {**fusion_table, **cal}
         fusion_source += f" with {args.calibration}"
     fusion_opts, settings = fusion_options_from_table(fusion_table, fusion_source)
     smooth = args.smooth or settings.smooth
@@ -264,7 +265,8 @@ def _run(args: argparse.Namespace) -> int:
     if out.exists():
         shutil.rmtree(out)
     tmp.rename(out)
-    _print_summary(out, files, frames, imu, timings, warnings, summary_out, time_offset, time.perf_counter() - t_start)
+    _print_summary(out, files, frames, imu, timings, warnings, summary_out, time_offset, time.perf_counter() - t_start,
+                   getattr(args, "warning_prefix", ""))
     return 0
 
 
@@ -362,7 +364,7 @@ def _offset_line(t: dict) -> str:
             + ("applied" if t["applied"] else f"not applied (within {OFFSET_SIGNIFICANCE:g} sigma)"))
 
 
-def _print_summary(out, files, frames, imu, timings, warnings, summary, time_offset, total_s) -> None:
+def _print_summary(out, files, frames, imu, timings, warnings, summary, time_offset, total_s, prefix="") -> None:
     drive_s = float(frames["t_s"].iloc[-1] - frames["t_s"].iloc[0]) if len(frames) > 1 else math.nan
     cal = f", {out}/calibration.toml" if (out / "calibration.toml").is_file() else ""
     report = "report.html" if (out / "report" / "report.html").is_file() else "summary.json"
@@ -383,4 +385,4 @@ def _print_summary(out, files, frames, imu, timings, warnings, summary, time_off
             cells = ", ".join(f"{k} {v:.3f}" for k, v in vals.items() if isinstance(v, float) and k != "valid_fraction")
             print(f"RMSE vs truth [deg] {src}: {cells}")
     for w in (summary or {}).get("warnings", warnings):   # the report's adds its own
-        print(f"warning: {w}", file=sys.stderr)
+        print(f"warning: {prefix}{w}", file=sys.stderr)
