@@ -183,6 +183,11 @@ def parse_camera(t: Table) -> Camera:
         return _build(t.source, "camera", lambda: Camera.from_fov(width, height, hfov, distortion=dist))
     fx = t.get("fx", "float", min=1e-9)
     fy = t.get("fy", "float", fx, min=1e-9)
+    for key, f, size in (("fx", fx, width), ("fy", fy, height)):
+        # (a focal length of 0.001 was taken, and every frame then failed without a word of why)
+        if f < 0.5 * size / math.tan(math.radians(89.5)):
+            raise ConfigError(f"{t.source}: [camera] {key} = {f:g} px makes a field of view of 179 deg or more "
+                              f"across the {size} px: the focal length is in pixels")
     cx = t.get("cx", "float", (width - 1) / 2.0)
     cy = t.get("cy", "float", (height - 1) / 2.0)
     dist = t.get("distortion", "floats", (0.0,) * 5)

@@ -179,10 +179,15 @@ def check_overlap(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: str, log_
 FRAMES_OUTSIDE_WARN = 0.1
 
 
-def frames_outside_warning(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: str) -> str | None:
+def frames_outside_warning(frame_t: np.ndarray, imu_t: np.ndarray, frames_name: str,
+                           log_complete: bool = True) -> str | None:
     """A warning when many frames fall outside the IMU samples' span (not used: a frames.csv in
-    milliseconds, or shifted), or None."""
+    milliseconds, or shifted), or None. The frames after the end of a log that broke off
+    (``log_complete`` False) are that log's warning's, not a question of the clock (a review
+    found them blamed on frames.csv's times)."""
     before, after = int(np.sum(frame_t < imu_t[0])), int(np.sum(frame_t > imu_t[-1]))
+    if not log_complete:
+        after = 0
     if before + after <= FRAMES_OUTSIDE_WARN * len(frame_t):
         return None
     return (f"{before + after} of {len(frame_t)} frames fall outside the CAN log's IMU samples ({before} before, "
@@ -205,9 +210,42 @@ def video_container(video: Path) -> tuple[int, float | None] | None:
         return None
 
 
+def video_cut_warning(video: Path, n_read: int) -> str | None:
+    """A warning when a video's container announces more frames than could be decoded (a file
+    cut short: without frames.csv, which would list the frames, it had read as whole, a review),
+    or None."""
+    container = video_container(video)
+    if container is None or container[0] <= n_read:
+        return None
+    return (f"{video}: its container announces {container[0]} frames, {n_read} could be read "
+            "(a file cut short?): the rest are not processed")
+
+
 #: A frame interval of frames.csv off the median frame period (per frame number) by more than
 #: this fraction is said: times and frame numbers disagree there.
 FRAME_PERIOD_TOLERANCE = 0.5
+
+
+#: Share of valid vision frames under which a command warns (lanes lost, a camera config that
+#: does not fit the video).
+VISION_VALID_WARN = 0.5
+
+
+def vision_warnings(video, vision: pd.DataFrame, stats: dict, n_listed: int, listed_by: str) -> list[str]:
+    """What a command says of the vision's result: listed frames the video did not give
+    (``stats``: :func:`vision.video.estimate_video`'s; ``listed_by`` says who listed them:
+    frames.csv, or the video's header for a truncated file), and a vision valid on under
+    :data:`VISION_VALID_WARN` of its frames, with the commonest reason."""
+    out = []
+    if stats.get("frames_missing"):
+        out.append(f"{video}: {stats['frames_read']} frames could be read; {stats['frames_missing']} of the "
+                   f"{n_listed} frames {listed_by} are not among them (not processed)")
+    n_valid = int(vision["valid"].sum()) if len(vision) else 0
+    if len(vision) and n_valid < VISION_VALID_WARN * len(vision):
+        reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts()
+        why = f" (mostly: {reasons.index[0]})" if len(reasons) else ""
+        out.append(f"vision valid on {n_valid} of {len(vision)} frames{why}")
+    return out
 
 
 def frames_spacing_warning(frames: pd.DataFrame, frames_name: str, video: Path | None = None) -> str | None:

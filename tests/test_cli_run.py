@@ -641,6 +641,18 @@ def test_campaign_interrupted_after_a_drive_finished_says_it_ran(drive, tmp_path
     assert table["calibration_from"].iloc[1] == str(out / "drive" / "calibration.toml")
 
 
+def test_frames_after_a_log_that_broke_off_are_not_blamed_on_the_clock():
+    """Frames after the end of a CAN log that broke off are that log's warning's ("log
+    incomplete"), not a question of frames.csv's clock, which a review found them blamed on;
+    frames before a log's start still are."""
+    from fusion.drive import frames_outside_warning
+
+    frame_t, imu_t = np.arange(30) / 30.0, np.arange(0.0, 0.5, 0.01)
+    assert "are frames.csv's times in seconds" in frames_outside_warning(frame_t, imu_t, "frames.csv")
+    assert frames_outside_warning(frame_t, imu_t, "frames.csv", log_complete=False) is None
+    assert "15 before" in frames_outside_warning(frame_t - 0.5, imu_t + 0.0, "frames.csv", log_complete=False)
+
+
 def test_campaign_drives_given_as_links_keep_their_names(drive, tmp_path):
     """Two links to drive folders of the same name are two drives (their link names)."""
     for name in ("day1", "day2"):

@@ -34,7 +34,8 @@ def _pts(uv: np.ndarray) -> np.ndarray:
 
 
 def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: float | None = None) -> np.ndarray:
-    """The debug picture of one frame (uint8 BGR, the frame's height, wider by the BEV panel)."""
+    """The debug picture of one frame (uint8 BGR): the frame and the BEV panel (half its width)
+    side by side, the estimate's text in a strip under them."""
     frame = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     frame = np.ascontiguousarray(frame[..., :3]).copy()
     if frame.dtype != np.uint8:
@@ -121,10 +122,14 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
         lines.append(f"t {t_s:.3f} s")
     scale = max(0.5, H / 900.0)
     step = int(round(30 * scale)) + 4
-    cv2.rectangle(frame, (0, 0), (int(560 * scale), step * len(lines) + 8), (0, 0, 0), -1)
+    # the text in a strip under the pictures, of three lines whatever the frame says (one size
+    # for the whole video): drawn over the frame, its box hid the vanishing point and most of
+    # the horizon of a 320x180 frame (a review)
+    pictures = np.concatenate([frame, bev_panel], axis=1)
+    strip = np.zeros((step * 3 + 8, pictures.shape[1], 3), dtype=pictures.dtype)
     for i, text in enumerate(lines):
-        cv2.putText(frame, text, (8, step * (i + 1)), cv2.FONT_HERSHEY_SIMPLEX, scale, WHITE, 1, cv2.LINE_AA)
-    return np.concatenate([frame, bev_panel], axis=1)
+        cv2.putText(strip, text, (8, step * (i + 1)), cv2.FONT_HERSHEY_SIMPLEX, scale, WHITE, 1, cv2.LINE_AA)
+    return np.concatenate([pictures, strip], axis=0)
 
 
 @functools.lru_cache(maxsize=8)
@@ -156,13 +161,17 @@ class DebugWriter:
 
     @classmethod
     def check(cls, path: str | os.PathLike) -> Path:
-        """``path`` if a debug video can be written there (a known suffix, an existing folder),
-        else :class:`VisionError`: for a command to say so before its work."""
+        """``path`` if a debug video can be written there (a known suffix; its folder is made, as
+        the tables' are, unless a file is in the way), else :class:`VisionError`: for a command
+        to say so before its work."""
         path = Path(path)
         if path.suffix.lower() not in cls.SUFFIXES:
             raise VisionError(f"{path}: a debug video must end in {', '.join(cls.SUFFIXES)}")
-        if not path.parent.is_dir():
-            raise VisionError(f"{path}: no folder {path.parent}")
+        folder = path.parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir():
+            raise VisionError(f"{path}: {folder} is a file, not a folder")
         return path
 
     def write(self, image: np.ndarray, est: VisionEstimate, t_s: float | None = None) -> None:
@@ -170,6 +179,7 @@ class DebugWriter:
         if pic.shape[0] % 2 or pic.shape[1] % 2:   # the codecs take even sizes (an odd row was cut)
             pic = cv2.copyMakeBorder(pic, 0, pic.shape[0] % 2, 0, pic.shape[1] % 2, cv2.BORDER_CONSTANT)
         if self.writer is None:
+            self.tmp.parent.mkdir(parents=True, exist_ok=True)
             self.size = (pic.shape[1], pic.shape[0])
             fourcc = cv2.VideoWriter_fourcc(*("MJPG" if self.path.suffix.lower() == ".avi" else "mp4v"))
             self.writer = cv2.VideoWriter(str(self.tmp), fourcc, self.fps, self.size)

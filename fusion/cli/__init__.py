@@ -244,6 +244,25 @@ def write_table(df, path: Path) -> None:
     write_atomically(path, lambda tmp: df.to_csv(tmp, index=False, float_format="%.9g"))
 
 
+def check_output_file(path: Path) -> None:
+    """An output file's place, checked before any work (a review: a path under a file, or in a
+    folder that cannot be written, was said after the whole video or log, a debug video left
+    behind): not a folder, and the nearest existing folder above it (the rest is made on
+    writing) a folder this process may write in."""
+    from ..errors import InputError
+
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a file name")
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise InputError(f"{path}: {folder} is a file, not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: cannot write in {folder} (permission denied)")
+
+
 def refuse_inputs_as_outputs(outputs, inputs) -> None:
     """An output path that is one of the command's input files (after links) is refused
     before any work: it would be overwritten (a review: ``vifusion can X.csv --out X.csv``

@@ -19,7 +19,7 @@ from imu.samples import never_seen
 
 from ..config import Table, parse_can, parse_imu, read_toml
 from ..errors import ConfigError, InputError
-from . import refuse_inputs_as_outputs, settle_heap, write_table
+from . import check_output_file, refuse_inputs_as_outputs, settle_heap, write_table
 
 OUT_SUFFIXES = (".parquet", ".csv")
 
@@ -58,8 +58,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in OUT_SUFFIXES:
         raise InputError(f"{out}: output must end in {' or '.join(OUT_SUFFIXES)}")
-    if out.is_dir():
-        raise InputError(f"{out}: is a directory, expected a file name")
+    check_output_file(out)   # said now, not after the log
     if args.partial and out.suffix.lower() != ".parquet":
         raise InputError(f"{out}: --partial needs a .parquet output, which keeps complete=false with the table "
                          "(a CSV of a log that broke off would look complete)")

@@ -95,7 +95,8 @@ def _run(args: argparse.Namespace) -> int:
     from ..calibration import calibration_table, pitch_gyro_prior_deg_s, read_calibration, write_calibration
     from ..config import load_config
     from ..drive import (check_overlap, check_truth_overlap, frames_outside_warning, frames_spacing_warning,
-                         frames_unlisted_warning, read_frame_times, read_truth)
+                         frames_unlisted_warning, read_frame_times, read_truth, video_cut_warning,
+                         vision_warnings)
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
     from ..pipeline import frame_gap_limit_s, frame_speeds, frames_to_samples, fuse, plain_bank
@@ -177,9 +178,13 @@ def _run(args: argparse.Namespace) -> int:
         warnings.append(f"CAN gaps: {len(gaps) - 5} more")
 
     frames = read_frame_times(files.frames, cfg.video, None if files.frames else _count_frames(files.video))
+    if not files.frames:
+        cut = video_cut_warning(files.video, len(frames))
+        if cut:
+            warnings.append(cut)
     frame_t, imu_t, frames_name = frames["t_s"].to_numpy() + offset_s, imu["t_s"].to_numpy(), str(files.frames or files.video)
     check_overlap(frame_t, imu_t, frames_name, str(files.can_log))
-    for warning in (frames_outside_warning(frame_t, imu_t, frames_name),
+    for warning in (frames_outside_warning(frame_t, imu_t, frames_name, imu.attrs.get("complete", True)),
                     frames_unlisted_warning(files.video, frames, frames_name, cfg.video.fps) if files.frames else None,
                     frames_spacing_warning(frames, frames_name, files.video) if files.frames else None):
         if warning:
@@ -199,17 +204,14 @@ def _run(args: argparse.Namespace) -> int:
                                     progress=progress, debug_video=args.debug_video,
                                     workers=args.workers or default_workers(), while_waiting=imu_only_run)
     timings["vision"] = time.perf_counter() - t0
-    if vstats.get("frames_missing"):
-        warnings.append(f"{files.video}: {vstats['frames_read']} frames could be read; {vstats['frames_missing']} of "
-                        f"the {len(frames)} frames that frames.csv lists are not among them (not processed)")
     if args.debug_video is not None and not len(vision):
         warnings.append(f"no debug video written to {args.debug_video}: no frame was processed")
-    n_valid = int(vision["valid"].sum()) if len(vision) else 0
-    if n_valid < VISION_VALID_WARN * len(vision) or not len(vision):
-        reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts() if len(vision) else None
-        why = f" (mostly: {reasons.index[0]})" if reasons is not None and len(reasons) else ""
-        warnings.append(f"vision valid on {n_valid} of {len(vision)} frames{why}: the fused angles relative to "
-                        "the road rest on the IMU and the last bank estimate elsewhere")
+    for w in vision_warnings(files.video, vision, vstats, len(frames),
+                             "that frames.csv lists" if files.frames else "counted in the video"):
+        warnings.append(w + (": the fused angles relative to the road rest on the IMU and the last bank estimate "
+                             "elsewhere" if w.startswith("vision valid") else ""))
+    if not len(vision):
+        warnings.append("vision valid on 0 of 0 frames: the fused angles relative to the road rest on the IMU")
     t0 = time.perf_counter()
     write_tables(vision, tmp / "vision")
     timings["outputs"] = time.perf_counter() - t0   # the tables grow with the drive: not a fixed cost
@@ -306,9 +308,6 @@ def _count_frames(video: Path) -> int:
     return count_frames(video)
 
 
-#: Share of valid vision frames under which the run warns (lanes lost, a camera config that
-#: does not fit the video).
-VISION_VALID_WARN = 0.5
 #: An estimated camera-offset correction is applied when it is more than this many of its
 #: sigmas from zero (fusion.timing).
 OFFSET_SIGNIFICANCE = 2.0

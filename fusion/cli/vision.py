@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from . import mapped_as, refuse_inputs_as_outputs, workers_arg, write_table
+from . import check_output_file, mapped_as, refuse_inputs_as_outputs, workers_arg, write_table
 
 
 def add_parser(sub) -> None:
@@ -52,17 +52,18 @@ def run(args: argparse.Namespace) -> int:
     from vision.video import count_frames, default_workers, estimate_video
 
     from ..config import load_config
-    from ..drive import read_frame_times
+    from ..drive import (frames_spacing_warning, frames_unlisted_warning, read_frame_times, video_cut_warning,
+                         vision_warnings)
     from ..errors import InputError
     from . import settle_heap
 
     settle_heap()
     if args.out.suffix.lower() not in (".csv", ".parquet"):
         raise InputError(f"{args.out}: the vision table is written as .csv or .parquet")
-    if args.out.is_dir():   # said now, not after every frame
-        raise InputError(f"{args.out}: is a directory, expected a file name")
+    check_output_file(args.out)   # said now, not after every frame
     if args.debug_video is not None:
         DebugWriter.check(args.debug_video)
+        check_output_file(args.debug_video)
     refuse_inputs_as_outputs([args.out, args.debug_video], [args.video, args.frames, args.config, args.can, args.dbc])
 
     cfg = load_config(args.config)
@@ -74,6 +75,9 @@ def run(args: argparse.Namespace) -> int:
         options = replace(options, method=args.method) if args.method == "alrazouk" else \
             options_from_table({**table, "preset": "damon2018"}, str(args.config))
     frames = read_frame_times(args.frames, cfg.video, None if args.frames else count_frames(args.video))
+    warnings = [w for w in ((frames_unlisted_warning(args.video, frames, str(args.frames), cfg.video.fps),
+                             frames_spacing_warning(frames, str(args.frames), args.video)) if args.frames
+                            else (video_cut_warning(args.video, len(frames)),)) if w]
     if args.can is not None:
         frames = frames.assign(speed_m_s=_wheel_speeds(args, cfg, frames["t_s"].to_numpy()))
     elif args.dbc is not None:
@@ -81,6 +85,10 @@ def run(args: argparse.Namespace) -> int:
     vision, stats = estimate_video(args.video, frames, cfg.camera, cfg.mount, cfg.road, options,
                                    progress=not args.quiet, debug_video=args.debug_video,
                                     workers=args.workers or default_workers())
+    listed_by = "that frames.csv lists" if args.frames else "counted in the video"
+    if not len(vision):
+        raise InputError(f"{args.video}: none of the {len(frames)} frames {listed_by} could be read: nothing written")
+    warnings += vision_warnings(args.video, vision, stats, len(frames), listed_by)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_table(vision, args.out)
     n = len(vision)
@@ -90,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
           + ((f"; debug video {args.debug_video}" if n else "; no debug video written (no frame was processed)")
              if args.debug_video else "")
           + ("; road-twist map off (no wheel speed: --can LOG)" if options.road_twist and args.can is None else ""))
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
     return 0
 
 
@@ -120,7 +130,8 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
     if not imu.attrs.get("complete", True):
         print(f"warning: {args.can}: log incomplete, read up to {imu['t_s'].iloc[-1]:.1f} s: the frames after it "
               "get no wheel speed", file=sys.stderr)
-    outside = frames_outside_warning(t, imu["t_s"].to_numpy(), str(args.frames or args.video))
+    outside = frames_outside_warning(t, imu["t_s"].to_numpy(), str(args.frames or args.video),
+                                     imu.attrs.get("complete", True))
     if outside:
         print(f"warning: {outside}", file=sys.stderr)
     speeds = frame_speeds(imu, t)
