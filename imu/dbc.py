@@ -101,7 +101,8 @@ class DecodePlan:
         return frozenset(s.frame_id for s in self.sources)
 
 
-_SYNTAX = re.compile(r"line (\d+), column (\d+): \"(.*)\"", re.S)
+# (cantools quotes the text, and its message as a whole: 'DBC: "... column 1: ">>!<<hello""')
+_SYNTAX = re.compile(r"line (\d+), column (\d+): \"(.*?)\"\"?$", re.S)
 
 
 #: cantools' refusal of VAL_ entries whose signal no message has: ``VAL_ <frame id> <signal>``.

@@ -169,13 +169,15 @@ ASC_MESSAGE_REGEX = getattr(can.io.asc, "ASC_MESSAGE_REGEX", None) or re.compile
     r"\d+\.\d+\s+(\d+\s+(\w+\s+(Tx|Rx)|ErrorFrame)|CANFD)", re.ASCII | re.IGNORECASE)
 
 #: The form of an ASC frame line, whatever its fields hold (:func:`_asc_frame_like`).
-_ASC_FRAME_LIKE = re.compile(r"\s(?:Rx|Tx)\s+[dr]\s|^\s*\S+\s+CANFD\s|^\s*\d\S*\s+\d+\s+errorframe", re.IGNORECASE)
+_ASC_FRAME_LIKE = re.compile(r"\s(?:Rx|Tx)\s+[dr]\s|^\s*\S+\s+CANFD\s|^\s*\d\S*\s+\d+\s+errorframe"
+                             r"|^\s*\d+[.,]\d*\s+\d+\s+[0-9a-f]+x?\s", re.IGNORECASE)
 
 
 def _asc_frame_like(line: str) -> bool:
     """Whether an ASC line has the form of a CAN frame whatever its fields hold: ``Rx`` or ``Tx``
     followed by ``d`` (data) or ``r`` (remote), ``time CANFD ...``, ``time channel
-    ErrorFrame``. python-can's reader passes over a line its pattern (``ASC_MESSAGE_REGEX``)
+    ErrorFrame``, or a time, a channel and a hexadecimal ID (the rest overwritten: a review's
+    file with 200 bytes of garbage mid-file). python-can's reader passes over a line its pattern (``ASC_MESSAGE_REGEX``)
     does not match, as it does over comments and other events (LIN, statistics, chip states),
     without a word: such a line of this form (a decimal comma in the time, a stray character)
     is a frame lost."""
@@ -440,7 +442,9 @@ def _iter_binary(path: Path, cls: type, gz: bool, state: ReadState) -> Iterator[
         try:
             yield from (_without_zeroed_records(reader, state) if state.fmt == ".mf4" else reader)
         except Exception as e:  # noqa: BLE001
-            state.stopped(f"reading stopped after {state.messages} messages: {type(e).__name__}: "
+            # (no count here: the reader's messages are counted per batch, and the summary says
+            # how many frames were read; "after 0 messages" had been said after 376, a review)
+            state.stopped(f"reading stopped before the file's end: {type(e).__name__}: "
                           f"{' '.join(str(e).split())[:200] or 'corrupt data'}")
         announced = getattr(reader, "file_size", None)
         if isinstance(announced, int) and announced > (state.size or 0) and not gz:

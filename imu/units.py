@@ -100,8 +100,8 @@ def si_factor(unit: str | None, channel: str, where: str) -> float:
     hit = UNITS.get(normalize_unit(str(unit)))
     if hit is None:
         raise ImuConfigError(
-            f'{where}: unknown unit "{unit}" for {channel} ({want}); known: {", ".join(_examples(want))} '
-            f"(set [can.units] {channel} to override)"
+            f'{where}: unknown unit "{unit}" for {channel} ({want}); known: {", ".join(_examples(want))}'
+            + ("" if where.startswith("[can.units]") else f" (set [can.units] {channel} to override)")
         )
     quantity, factor = hit
     if quantity != want:

@@ -93,6 +93,7 @@ def test_CORRUPT_LINE_MIDWAY_skipped_and_counted(tmp_path, clean, suffix, counte
     (lambda ln: ln.replace(".", ",", 1), "decimal comma"),                    # CANoe in a German locale
     (lambda ln: ln.replace(".", ".x", 1), "decimal comma"),                   # a stray character
     (lambda ln: " nan " + ln.split(None, 1)[1], "decimal comma"),             # a time written as nan
+    (lambda ln: ln.replace("Rx", "#%", 1), "decimal comma"),                  # overwritten after its ID
     (lambda ln: ln[:-4] + ln[-3:], "not two hex digits"),                     # a lost digit: '7' for '07'
 ])
 def test_ASC_FRAME_LINES_the_reader_passes_over_are_counted(tmp_path, clean, edit, problem):
@@ -360,8 +361,9 @@ def test_UNKNOWN_UNIT_override():
     """An unknown unit in [can.units] is refused where the mapping is made (the config: its
     error then names the file), not when the log is decoded."""
     m = sim_mapping()
-    with pytest.raises(ImuConfigError, match=r'\[can.units\] gyro_x: unknown unit "furlong/fortnight"'):
+    with pytest.raises(ImuConfigError, match=r'\[can.units\] gyro_x: unknown unit "furlong/fortnight"') as e:
         CanMapping(m.dbc_path, m.signals, units={"gyro_x": "furlong/fortnight"})
+    assert "to override" not in str(e.value)    # it is the override (a review: told to set the key that is wrong)
     with pytest.raises(ImuConfigError, match=r'\[can.units\] gyro_x: unit "m/s" is a speed, but gyro_x needs'):
         CanMapping(m.dbc_path, m.signals, units={"gyro_x": "m/s"})
 

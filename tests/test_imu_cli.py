@@ -85,6 +85,14 @@ def test_bad_inputs_one_line_exit_2(tmp_path, drive, capsys):
     broken.write_text(DBC_PATH.read_text().replace('BO_ 376 IMU_ACC: 8 IMU', 'BO_ 376 IMU_ACC 8 IMU', 1))
     msg = _run_error(["can", str(log), "--config", str(cfg), "--out", str(out), "--dbc", str(broken), "--quiet"], capsys)
     assert "broken.dbc:" in msg and "DBC syntax error" in msg
+    broken.write_text("hello\nthis is not a dbc\n")     # the text near the error, without cantools' quote
+    msg = _run_error(["can", str(log), "--config", str(cfg), "--out", str(out), "--dbc", str(broken), "--quiet"], capsys)
+    assert msg.endswith("broken.dbc:1: DBC syntax error at column 1 near 'hello'"), msg
+    # outputs under a file: said before the log is read (a review: after the whole log)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    msg = _run_error(["can", str(log), "--config", str(cfg), "--out", str(a_file / "imu.csv"), "--quiet"], capsys)
+    assert "is a file, not a folder" in msg
     bad_cfg = _config(tmp_path, extra="gap_limt_s = 0.2\n")
     msg = _run_error(["can", str(log), "--config", str(bad_cfg), "--out", str(out), "--quiet"], capsys)
     assert "[can] gap_limt_s is not a known key" in msg
