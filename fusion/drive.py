@@ -278,6 +278,24 @@ def frames_spacing_warning(frames: pd.DataFrame, frames_name: str, video: Path |
             "fused at the times it gives")
 
 
+def frames_skipped_warning(frames: pd.DataFrame, frames_name: str) -> str | None:
+    """A warning when frames.csv's frame numbers step over video frames more than its usual
+    step does (a listing of every n-th frame is regular; one with a frame left out here and
+    there leaves those frames unprocessed without a word, a review found), or None."""
+    f = frames["frame"].to_numpy(dtype=np.int64)
+    if len(f) < 3:
+        return None
+    step = np.diff(f)
+    usual = int(np.median(step))
+    over = step > usual
+    if not over.any():
+        return None
+    skipped = int(np.sum(step[over] - usual) // max(usual, 1))
+    k = int(np.flatnonzero(over)[0])
+    return (f"{frames_name}: its frame numbers skip {skipped} of the video's frames beyond its usual step of {usual} "
+            f"(first after frame {int(f[k])}, next listed {int(f[k + 1])}): those are not processed")
+
+
 def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str, fps: float) -> str | None:
     """A warning when the video holds more than a second of frames after the last one that
     ``frames`` lists (a frames.csv cut short: the frames after it are not processed), or None.

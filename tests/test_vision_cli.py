@@ -384,3 +384,19 @@ def test_what_the_vision_command_says_of_bad_input(drive, tmp_path, capsys):
     assert main(["vision", "--video", str(root / "frames"), "--config", str(tiny_f), "--out", str(out),
                  "--quiet"]) == 2
     assert "the focal length is in pixels" in capsys.readouterr().err
+
+
+def test_a_frame_left_out_of_frames_csv_is_said(drive, tmp_path, capsys):
+    """A frames.csv with a frame left out mid-listing: that video frame is not processed, and
+    now said (a review found it skipped without a word); a listing of every other frame is
+    regular and not said."""
+    root, _ = drive
+    frames = pd.read_csv(root / "frames.csv")
+    for rows, said in (([0, 1, 3, 4], "skip 1 of the video's frames beyond its usual step of 1 (first after frame 1, "
+                                      "next listed 3)"), ([0, 2, 4], None)):
+        listing = tmp_path / "listing.csv"
+        frames.iloc[rows].to_csv(listing, index=False)
+        assert main(["vision", "--video", str(root / "frames"), "--frames", str(listing), "--config",
+                     str(root / "config.toml"), "--out", str(tmp_path / "v.csv"), "--quiet"]) == 0
+        err = capsys.readouterr().err
+        assert (said in err) if said else ("skip" not in err), err

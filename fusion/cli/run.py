@@ -95,7 +95,8 @@ def _run(args: argparse.Namespace) -> int:
     from ..calibration import calibration_table, pitch_gyro_prior_deg_s, read_calibration, write_calibration
     from ..config import load_config
     from ..drive import (check_overlap, check_truth_overlap, frames_outside_warning, frames_spacing_warning,
-                         frames_unlisted_warning, read_frame_times, read_truth, video_cut_warning,
+                         frames_skipped_warning, frames_unlisted_warning, read_frame_times, read_truth,
+                         video_cut_warning,
                          vision_warnings)
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
@@ -186,7 +187,8 @@ def _run(args: argparse.Namespace) -> int:
     check_overlap(frame_t, imu_t, frames_name, str(files.can_log))
     for warning in (frames_outside_warning(frame_t, imu_t, frames_name, imu.attrs.get("complete", True)),
                     frames_unlisted_warning(files.video, frames, frames_name, cfg.video.fps) if files.frames else None,
-                    frames_spacing_warning(frames, frames_name, files.video) if files.frames else None):
+                    frames_spacing_warning(frames, frames_name, files.video) if files.frames else None,
+                    frames_skipped_warning(frames, frames_name) if files.frames else None):
         if warning:
             warnings.append(warning)
 
