@@ -161,17 +161,13 @@ class DebugWriter:
 
     @classmethod
     def check(cls, path: str | os.PathLike) -> Path:
-        """``path`` if a debug video can be written there (a known suffix; its folder is made, as
-        the tables' are, unless a file is in the way), else :class:`VisionError`: for a command
-        to say so before its work."""
+        """``path`` if it names a video this writer can write (a known suffix), else
+        :class:`VisionError`: for a command to say so before its work (its folder is made on
+        writing, as the tables' are; the commands check the place,
+        :func:`fusion.cli.check_output_file`)."""
         path = Path(path)
         if path.suffix.lower() not in cls.SUFFIXES:
             raise VisionError(f"{path}: a debug video must end in {', '.join(cls.SUFFIXES)}")
-        folder = path.parent
-        while not folder.exists() and folder != folder.parent:
-            folder = folder.parent
-        if not folder.is_dir():
-            raise VisionError(f"{path}: {folder} is a file, not a folder")
         return path
 
     def write(self, image: np.ndarray, est: VisionEstimate, t_s: float | None = None) -> None:
