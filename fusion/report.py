@@ -9,6 +9,7 @@ import html
 import io
 import json
 import math
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -354,7 +355,11 @@ def write_report(r: ReportInputs, out_dir: str | Path, plots: bool = True) -> di
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = summarise(r)
     if plots:
+        t0 = time.perf_counter()
         _write_pages(r, summary, out_dir)
+        # the plots' and page's own time (the run's clock had stopped before them: summary.json
+        # had every step's time but the report's, a review)
+        summary["timings_s"] = {**summary.get("timings_s", {}), "report": time.perf_counter() - t0}
     write_bytes_atomically(out_dir / "summary.json",
                            json.dumps(_finite_or_null(summary), indent=2, default=_json_default, allow_nan=False).encode())
     return summary

@@ -158,3 +158,18 @@ def test_a_summary_without_truth_has_its_scores_null(drawn):
     scored = report.summarise(inputs)
     assert set(scored) == set(bare)
     assert 0.0 < scored["rmse_deg"]["fused"]["roll"] < 1.0 and 0.0 <= scored["consistency"]["fraction_inside"] <= 1.0
+
+
+def test_the_summary_has_the_reports_own_time(drawn, tmp_path):
+    """summary.json's timings had every step's time but the report's (the run's clock stops
+    before it): the plots' and page's time is in it when they are drawn, not without them; the
+    run's own timings are kept."""
+    import json
+    from dataclasses import replace
+
+    inputs = replace(drawn["inputs"], timings_s={"vision": 1.5})
+    report.write_report(inputs, tmp_path / "with")
+    t = json.loads((tmp_path / "with" / "summary.json").read_text())["timings_s"]
+    assert t["vision"] == 1.5 and 0.0 < t["report"] < 120.0
+    report.write_report(inputs, tmp_path / "without", plots=False)
+    assert json.loads((tmp_path / "without" / "summary.json").read_text())["timings_s"] == {"vision": 1.5}
