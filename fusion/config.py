@@ -222,7 +222,7 @@ def parse_imu(t: Table) -> ImuMount:
 def parse_can(t: Table, base_dir: Path) -> CanMapping | None:
     if not t.data:
         return None
-    dbc = t.get("dbc", "str")
+    dbc = t.get("dbc", "str", None)     # or the command's --dbc (INTERFACE.md's command line gives it)
     gap = t.get("gap_limit_s", "float", 0.1, min=1e-6, max=10.0)
     window = t.get("align_window_s", "float", 0.002, min=1e-6)
     range_check = t.get("range_check", "bool", True)
@@ -234,7 +234,7 @@ def parse_can(t: Table, base_dir: Path) -> CanMapping | None:
     units_t = t.sub("units")
     units = {k: units_t.get(k, "str") for k in list(units_t.data)}
     t.done()
-    dbc_path = Path(dbc) if Path(dbc).is_absolute() else base_dir / dbc
+    dbc_path = None if dbc is None else Path(dbc) if Path(dbc).is_absolute() else base_dir / dbc
     return _build(t.source, "can", lambda: CanMapping(
         dbc_path, signals, units, gap, align_window_s=window, range_check=range_check,
         pad_short_frames=pad_short, channel=channel, reorder_tolerance_s=reorder))

@@ -105,7 +105,7 @@ class CanMapping:
         with an error if a mapped frame ID shows up on more than one.
     """
 
-    dbc_path: Path
+    dbc_path: Path | None               # None: given elsewhere (a command's --dbc), before decoding
     signals: Mapping[str, str]
     units: Mapping[str, str] = field(default_factory=dict)
     gap_limit_s: float = 0.1
@@ -146,6 +146,7 @@ class CanMapping:
         for key in ("range_check", "pad_short_frames"):
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise ImuConfigError(f"[can] {key} must be true or false, got {getattr(self, key)!r}")
-        object.__setattr__(self, "dbc_path", Path(self.dbc_path))
+        if self.dbc_path is not None:
+            object.__setattr__(self, "dbc_path", Path(self.dbc_path))
         object.__setattr__(self, "signals", MappingProxyType(dict(self.signals)))
         object.__setattr__(self, "units", MappingProxyType(dict(self.units)))

@@ -192,7 +192,9 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
     DecodeError
         The DBC does not load.
     """
-    path = Path(mapping.dbc_path)
+    if mapping.dbc_path is None and db is None:
+        raise ImuConfigError("[can] dbc is missing: give the DBC as the config's [can] dbc or with --dbc")
+    path = Path(mapping.dbc_path) if mapping.dbc_path is not None else Path("DBC")
     if db is None:
         db = load_dbc(path)
     name = path.name

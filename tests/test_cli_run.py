@@ -654,6 +654,26 @@ def test_frames_after_a_log_that_broke_off_are_not_blamed_on_the_clock():
     assert "15 before" in frames_outside_warning(frame_t - 0.5, imu_t + 0.0, "frames.csv", log_complete=False)
 
 
+def test_the_contracts_command_line_with_a_drives_files(drive, tmp_path):
+    """INTERFACE.md's command line, file by file: a config without `[can] dbc` runs with `--dbc`
+    (it was refused for the missing key, a review), and a config without it and no `--dbc` is
+    one line naming both; the report is against the drive's truth.csv beside the video, as with
+    --drive (it was left out, a review), and the run says which file it took."""
+    cfg = tmp_path / "config.toml"
+    cfg.write_text("".join(line for line in (drive / "config.toml").read_text().splitlines(keepends=True)
+                           if not line.startswith("dbc")))
+    common = ["run", "--video", drive / "video.mp4", "--frames", drive / "frames.csv", "--can",
+              next(drive.glob("can.*")), "--config", cfg, "--quiet", "--no-report"]
+    r = vifusion(*common, "--dbc", drive / "vifusion_imu.dbc", "--out", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    assert f"truth: {drive / 'truth.csv'} (the drive's, beside the video" in r.stdout, r.stdout
+    summary = json.loads((tmp_path / "out" / "report" / "summary.json").read_text())
+    # (the 2 s drive is too short to score: said only when there is a truth)
+    assert any("no RMSE against truth: the drive has under 1 s" in w for w in summary["warnings"]), summary
+    one_line_error(vifusion(*common, "--out", tmp_path / "none"), "[can] dbc is missing", "--dbc")
+    assert not (tmp_path / "none").exists() and not (tmp_path / "none.partial").exists()
+
+
 def test_campaign_drives_given_as_links_keep_their_names(drive, tmp_path):
     """Two links to drive folders of the same name are two drives (their link names)."""
     for name in ("day1", "day2"):

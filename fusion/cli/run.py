@@ -64,8 +64,15 @@ def _inputs(args):
         missing = [a for a in ("video", "can", "config") if getattr(args, a) is None]
         if missing:
             raise InputError(f"--{missing[0]} is required with --{explicit[0]} (or give none to run the sample drive)")
+        truth = args.truth
+        beside = Path(args.video).parent / "truth.csv"
+        if truth is None and beside.is_file():
+            # the drive's truth, as with --drive (INTERFACE.md: the report against truth.csv when
+            # the drive has one; given file by file, a simulated drive's was left out, a review)
+            truth = beside
+            print(f"truth: {beside} (the drive's, beside the video; --truth names another)")
         files = DriveFiles(video=args.video, can_log=args.can, config=args.config, frames=args.frames,
-                           dbc=args.dbc, truth=args.truth).check()
+                           dbc=args.dbc, truth=truth).check()
     if args.truth is not None and files.truth != args.truth:
         files = DriveFiles(**{**files.__dict__, "truth": args.truth}).check()
     if args.dbc is not None and files.dbc != args.dbc:
