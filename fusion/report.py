@@ -106,6 +106,13 @@ def summarise(r: ReportInputs) -> dict:
             acc["imu_minus_vision"] = rmse_table(pb, r.truth, t0, angles=("bank",))
         if r.imu_only is not None:
             acc["imu_only"] = rmse_table(r.imu_only, r.truth, t0, angles=("roll_world", "pitch_world"))
+        # every source's key there, null where it has no value (no vision, a truth without the
+        # column): the keys had changed from run to run (a review); the vision's share of valid
+        # frames is kept beside angles that are null
+        for src in ("vision", "imu_minus_vision", "imu_only"):
+            vals = acc.get(src) or {}
+            if "valid_fraction" not in vals and not any(math.isfinite(v) for v in vals.values()):
+                acc[src] = None
         out["rmse_deg"] = acc
         nees_angles = ("roll", "pitch", "yaw", "bank")
         if all(f"{a}_deg" in r.truth for a in nees_angles) and \
@@ -145,6 +152,8 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
     figs: dict[str, bytes] = {}
 
     settled = tf >= CONVERGENCE_S
+    if not settled.any():   # a drive shorter than the convergence: its panels scaled to all of it (they had
+        settled[:] = True   # been scaled to the truth alone, the estimates off the panel, a review)
 
     def band(ax, col, label, color) -> list:
         """The estimate and its 2-sigma band; returns what the panel's scale is set to show
@@ -312,10 +321,17 @@ def _table_html(summary: dict) -> str:
         head = "".join(f"<th>{c}</th>" for c in cols)
         rows.append(f"<h2>RMSE against truth [deg] (after {CONVERGENCE_S:g} s)</h2><table><tr><th>source</th>{head}</tr>")
         for src, vals in acc.items():
+            if not vals or not any(math.isfinite(vals.get(c, math.nan)) for c in cols):
+                continue      # said under the table, not a row of blanks
             cells = "".join(f"<td>{vals[c]:.3f}</td>" if c in vals and math.isfinite(vals[c]) else "<td></td>"
                             for c in cols)
             rows.append(f"<tr><td>{html.escape(src)}</td>{cells}</tr>")
         rows.append("</table>")
+        none = [src for src, vals in acc.items() if not vals or not any(math.isfinite(vals.get(c, math.nan))
+                                                                        for c in cols)]
+        if none:
+            rows.append(f"<p>No RMSE of {html.escape(', '.join(none))}: no value to score (no valid vision frame, "
+                        "or the truth has none of its angles).</p>")
     c = summary.get("consistency")
     if c:
         rows.append("<h2>Consistency of the fused sigma</h2><p>NEES of (roll, pitch, yaw, bank): "
@@ -335,6 +351,13 @@ def _table_html(summary: dict) -> str:
     rows.append("<h2>Run</h2><table>")
     rows.append("<tr><td>estimate</td><td>" + ("forward filter and RTS smoother (offline)" if summary.get("smoothed")
                                              else "forward filter") + "</td></tr>")
+    rows.append(f"<tr><td>IMU samples fused</td><td>{summary.get('samples', 0)}</td></tr>"
+                f"<tr><td>duration [s]</td><td>{summary.get('duration_s', 0.0):.2f}</td></tr>"
+                f"<tr><td>camera time offset applied [s] (added to frames.csv's times)</td>"
+                f"<td>{summary.get('camera_time_offset_s', 0.0):+.4f}</td></tr>")
+    acc = summary.get("rmse_deg") or {}
+    if (acc.get("vision") or {}).get("valid_fraction") is not None:
+        rows.append(f"<tr><td>vision valid</td><td>{100 * acc['vision']['valid_fraction']:.1f} % of frames</td></tr>")
     for k, v in summary.get("counts", {}).items():
         rows.append(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>")
     for k, v in summary.get("timings_s", {}).items():
@@ -356,18 +379,18 @@ def write_report(r: ReportInputs, out_dir: str | Path, plots: bool = True) -> di
     summary = summarise(r)
     if plots:
         t0 = time.perf_counter()
-        _write_pages(r, summary, out_dir)
-        # the plots' and page's own time (the run's clock had stopped before them: summary.json
-        # had every step's time but the report's, a review)
+        figs = _plots(r) if len(r.fused) else {}
+        # the plots' own time, in the page and summary.json alike (the run's clock stops before
+        # the report: summary.json had every step's time but the report's, a review)
         summary["timings_s"] = {**summary.get("timings_s", {}), "report": time.perf_counter() - t0}
+        _write_pages(r, summary, out_dir, figs)
     write_bytes_atomically(out_dir / "summary.json",
                            json.dumps(_finite_or_null(summary), indent=2, default=_json_default, allow_nan=False).encode())
     return summary
 
 
-def _write_pages(r: ReportInputs, summary: dict, out_dir: Path) -> None:
-    """The PNG plots and the self-contained ``report.html`` (the plots inlined)."""
-    figs = _plots(r) if len(r.fused) else {}
+def _write_pages(r: ReportInputs, summary: dict, out_dir: Path, figs: dict) -> None:
+    """The PNG plots ``figs`` and the self-contained ``report.html`` (the plots inlined)."""
     for name, png in figs.items():
         write_bytes_atomically(out_dir / name, png)
     body = [f"<h1>{html.escape(r.title)}</h1>", _table_html(summary)]

@@ -2,6 +2,7 @@
 vision, the IMU alone and the plain IMU-minus-vision bank (issue 5). The figures are read
 where they are drawn (their axes' artists and legends), not from the PNG's pixels."""
 
+import pandas as pd
 import pytest
 
 from fusion import report
@@ -173,3 +174,59 @@ def test_the_summary_has_the_reports_own_time(drawn, tmp_path):
     assert t["vision"] == 1.5 and 0.0 < t["report"] < 120.0
     report.write_report(inputs, tmp_path / "without", plots=False)
     assert json.loads((tmp_path / "without" / "summary.json").read_text())["timings_s"] == {"vision": 1.5}
+
+
+def test_a_source_without_a_value_is_null_and_not_a_row_of_blanks(drawn, tmp_path):
+    """A run without a valid vision frame: the vision's and the plain bank's RMSE are null (the
+    plain bank's key had been left out, its keys changing from run to run), the page has no
+    row of blanks for them but a line saying so, and its run table has the camera offset, the
+    samples and the duration as summary.json has them (a review)."""
+    import json
+    from dataclasses import replace
+
+    inputs = drawn["inputs"]
+    blind = replace(inputs, vision=inputs.vision.assign(valid=0), plain_bank=inputs.plain_bank.iloc[:0],
+                    camera_time_offset_s=0.1)
+    summary = report.write_report(blind, tmp_path)
+    saved = json.loads((tmp_path / "summary.json").read_text())
+    assert saved["rmse_deg"]["imu_minus_vision"] is None and saved["rmse_deg"]["vision"]["roll"] is None
+    assert saved["rmse_deg"]["vision"]["valid_fraction"] == 0.0
+    assert saved["rmse_deg"]["fused"]["roll"] > 0 and set(saved["rmse_deg"]) == {"fused", "vision",
+                                                                                  "imu_minus_vision", "imu_only"}
+    page = (tmp_path / "report.html").read_text()
+    assert "<td>vision</td>" not in page and "<td>imu_minus_vision</td>" not in page
+    assert "No RMSE of vision, imu_minus_vision" in page
+    assert "+0.1000" in page and f"<td>{summary['samples']}</td>" in page and "0.0 % of frames" in page
+    assert f"<td>{summary['timings_s']['report']:.2f} s</td>" in page
+
+
+def test_a_drive_shorter_than_the_convergence_is_scaled_to_its_estimates(drawn):
+    """A drive under 2 s: the panels were scaled to the values after the first 2 s, none, and
+    so the bias panel to the truth alone, the estimates off it (a review); now to all of it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from dataclasses import replace
+
+    inputs = drawn["inputs"]
+    short = inputs.fused[inputs.fused["t_s"] < inputs.fused["t_s"].iloc[0] + 1.0]
+    seen = []
+    real = report._fig_to_png
+
+    def record(fig):
+        seen.append([(ax.get_ylabel(), ax.get_ylim()) for ax in fig.axes])
+        return real(fig)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(report, "_fig_to_png", record)
+    try:
+        zero = pd.DataFrame({"t_s": short["t_s"], **{f"{k}_bias_{a}_{u}": 0.0 for k, u in (("gyro", "rad_s"),
+                                                                                        ("accel", "m_s2"))
+                                                      for a in "xyz"}})   # a simulated IMU without biases
+        report._plots(replace(inputs, fused=short, cov=inputs.cov[:len(short)], imu_truth=zero))
+    finally:
+        mp.undo()
+    lims = dict(seen[-1])    # biases.png, drawn last
+    z = short["accel_bias_z_m_s2"].to_numpy()
+    lo, hi = lims["accel bias [m/s^2]"]
+    assert lo <= z.min() and z.max() <= hi

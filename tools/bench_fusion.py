@@ -564,9 +564,10 @@ def main(argv=None) -> int:
     print(head)
     print("-" * len(head))
     for name, acc, sm, nees_f, nees_s, *_ in rows:
-        for label, vals in (("fused (forward)", acc["fused"]), ("fused (smoothed)", sm), ("vision alone", acc.get("vision", {})),
-                            ("IMU - vision (2018)", acc.get("imu_minus_vision", {}))):
-            cells = " ".join(f"{vals[a]:7.3f}" if a in vals else f"{'':7}" for a in ("roll", "pitch", "yaw", "bank"))
+        for label, vals in (("fused (forward)", acc["fused"]), ("fused (smoothed)", sm), ("vision alone", acc.get("vision") or {}),
+                            ("IMU - vision (2018)", acc.get("imu_minus_vision") or {})):   # null: none
+            cells = " ".join(f"{vals[a]:7.3f}" if vals.get(a) is not None else f"{'':7}"
+                             for a in ("roll", "pitch", "yaw", "bank"))
             print(f"{name:<26} {label:<22} {cells}")
     if campaign_rows:
         print()

@@ -85,7 +85,7 @@ def main(argv=None) -> int:
             _, summ = B.run_cli(drive, out, "--no-report")
             cam = tomllib.loads((drive / "config.toml").read_text())["camera"]
             rows.append((name, f"{cam['width']}x{cam['height']}", summ["rmse_deg"]["fused"],
-                         summ["rmse_deg"]["vision"], summ["consistency"]["fraction_inside"]))
+                         summ["rmse_deg"]["vision"] or {}, summ["consistency"]["fraction_inside"]))
 
     print(f"RMSE against truth after 2 s [deg] (bars of issue 5: roll/pitch 0.15, yaw 0.1, bank 0.3; "
           f"* over the bar), seed offset {args.seed_offset}")
@@ -93,7 +93,7 @@ def main(argv=None) -> int:
           f"{'NEES in band':>12}   {'vision: roll':>12} {'pitch':>7} {'yaw':>7}")
     for name, size, fused, vision, nees in rows:
         f = " ".join(f"{fused[a]:6.3f}{'*' if fused[a] > B.BARS[a] else ' '}" for a in ("roll", "pitch", "yaw", "bank"))
-        v = " ".join(f"{vision[a]:7.3f}" for a in ("roll", "pitch", "yaw"))
+        v = " ".join(f"{vision[a]:7.3f}" if vision.get(a) is not None else f"{'':7}" for a in ("roll", "pitch", "yaw"))
         print(f"{name:<26} {size:>9}   {f:>38}  {100 * nees:11.1f}%   {v:>28}")
     return 0
 

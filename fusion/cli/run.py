@@ -391,7 +391,10 @@ def _print_summary(out, files, frames, imu, timings, warnings, summary, time_off
         print(f"camera time offset: {_offset_line(time_offset)}")
     if summary and summary.get("rmse_deg"):
         for src, vals in summary["rmse_deg"].items():
-            cells = ", ".join(f"{k} {v:.3f}" for k, v in vals.items() if isinstance(v, float) and k != "valid_fraction")
-            print(f"RMSE vs truth [deg] {src}: {cells}")
+            cells = ", ".join(f"{k} {v:.3f}" for k, v in (vals or {}).items()
+                              if isinstance(v, float) and math.isfinite(v) and k != "valid_fraction")
+            # a source without a value is left out ('nan' had been printed as one, a review)
+            if cells:
+                print(f"RMSE vs truth [deg] {src}: {cells}")
     for w in (summary or {}).get("warnings", warnings):   # the report's adds its own
         print(f"warning: {prefix}{w}", file=sys.stderr)
