@@ -585,7 +585,10 @@ class FusionStream:
                 self._reacquire(angles, kappa, bank=not defer)
                 self.counts["vision_reacquired"] += first
                 if ekf.update_vision(m, defer_roll=defer, bank_rate_ahead=rate_ahead):
+                    # used after all: counted once, as used (it had counted as rejected too, used
+                    # + rejected + invalid one more than the frames, a review)
                     self.counts["vision_used"] += first
+                    self.counts["vision_rejected"] -= first
                     self._last_vision_t = t
                 self._rejected_in_row = 0
         if self.record and self.steps:

@@ -466,6 +466,10 @@ def test_smoother_does_not_carry_a_reacquisition_backwards(drive):
     vision.loc[vision["t_s"] >= 30.0, "roll_deg"] += 5.0
     run = fuse(drive.imu, vision, lever_arm_m=drive.lever_arm_m, smooth=True, options=OPTIONS)
     assert run.counts["vision_reacquired"] >= 1
+    # each frame counted once: used, rejected or invalid (a frame used after the re-acquisition
+    # had counted as rejected as well, a review)
+    c = run.counts
+    assert c["vision_used"] + c["vision_rejected"] + c["vision_invalid"] == len(vision), c
     before = (run.fused["t_s"] > 25.0).to_numpy() & (run.fused["t_s"] < 29.9).to_numpy()
     ref = np.interp(run.fused["t_s"][before], drive.truth["t_s"], drive.truth["bank_deg"])
     assert np.max(np.abs(run.fused["bank_deg"][before] - ref)) < 0.3
