@@ -296,6 +296,19 @@ def frames_skipped_warning(frames: pd.DataFrame, frames_name: str) -> str | None
             f"(first after frame {int(f[k])}, next listed {int(f[k + 1])}): those are not processed")
 
 
+def frames_warnings(video: Path, frames: pd.DataFrame, frames_csv: Path | None, fps: float) -> list[str]:
+    """What a command says of the frames it is to process, before the vision runs: with
+    ``frames_csv``, its unlisted tail, its times against its frame numbers and frames it steps
+    over; without, a video that decodes to fewer frames than its container announces."""
+    if frames_csv is None:
+        said = (video_cut_warning(video, len(frames)),)
+    else:
+        name = str(frames_csv)
+        said = (frames_unlisted_warning(video, frames, name, fps), frames_spacing_warning(frames, name, video),
+                frames_skipped_warning(frames, name))
+    return [w for w in said if w]
+
+
 def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str, fps: float) -> str | None:
     """A warning when the video holds more than a second of frames after the last one that
     ``frames`` lists (a frames.csv cut short: the frames after it are not processed), or None.

@@ -177,10 +177,10 @@ def _asc_frame_like(line: str) -> bool:
     """Whether an ASC line has the form of a CAN frame whatever its fields hold: ``Rx`` or ``Tx``
     followed by ``d`` (data) or ``r`` (remote), ``time CANFD ...``, ``time channel
     ErrorFrame``, or a time, a channel and a hexadecimal ID (the rest overwritten: a review's
-    file with 200 bytes of garbage mid-file). python-can's reader passes over a line its pattern (``ASC_MESSAGE_REGEX``)
-    does not match, as it does over comments and other events (LIN, statistics, chip states),
-    without a word: such a line of this form (a decimal comma in the time, a stray character)
-    is a frame lost."""
+    file with 200 bytes of garbage mid-file). python-can's reader passes over a line its
+    pattern (``ASC_MESSAGE_REGEX``) does not match, as it does over comments and other events
+    (LIN, statistics, chip states), without a word: such a line of this form (a decimal comma
+    in the time, a stray character) is a frame lost."""
     return _ASC_FRAME_LIKE.search(line) is not None
 
 

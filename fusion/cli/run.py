@@ -101,10 +101,8 @@ def _run(args: argparse.Namespace) -> int:
 
     from ..calibration import calibration_table, pitch_gyro_prior_deg_s, read_calibration, write_calibration
     from ..config import load_config
-    from ..drive import (check_overlap, check_truth_overlap, frames_outside_warning, frames_spacing_warning,
-                         frames_skipped_warning, frames_unlisted_warning, read_frame_times, read_truth,
-                         video_cut_warning,
-                         vision_warnings)
+    from ..drive import (check_overlap, check_truth_overlap, frames_outside_warning, frames_warnings,
+                         read_frame_times, read_truth, vision_warnings)
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
     from ..pipeline import frame_gap_limit_s, frame_speeds, frames_to_samples, fuse, plain_bank
@@ -187,18 +185,10 @@ def _run(args: argparse.Namespace) -> int:
         warnings.append(f"CAN gaps: {len(gaps) - 5} more")
 
     frames = read_frame_times(files.frames, cfg.video, None if files.frames else _count_frames(files.video))
-    if not files.frames:
-        cut = video_cut_warning(files.video, len(frames))
-        if cut:
-            warnings.append(cut)
     frame_t, imu_t, frames_name = frames["t_s"].to_numpy() + offset_s, imu["t_s"].to_numpy(), str(files.frames or files.video)
     check_overlap(frame_t, imu_t, frames_name, str(files.can_log))
-    for warning in (frames_outside_warning(frame_t, imu_t, frames_name, imu.attrs.get("complete", True)),
-                    frames_unlisted_warning(files.video, frames, frames_name, cfg.video.fps) if files.frames else None,
-                    frames_spacing_warning(frames, frames_name, files.video) if files.frames else None,
-                    frames_skipped_warning(frames, frames_name) if files.frames else None):
-        if warning:
-            warnings.append(warning)
+    outside = frames_outside_warning(frame_t, imu_t, frames_name, imu.attrs.get("complete", True))
+    warnings += ([outside] if outside else []) + frames_warnings(files.video, frames, files.frames, cfg.video.fps)
 
     # the wheel speed at each frame: the estimator carries the road's twist by the distance travelled
     frames = frames.assign(speed_m_s=frame_speeds(imu, frame_t))

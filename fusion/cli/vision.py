@@ -52,8 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from vision.video import count_frames, default_workers, estimate_video
 
     from ..config import load_config
-    from ..drive import (frames_skipped_warning, frames_spacing_warning, frames_unlisted_warning, read_frame_times,
-                         video_cut_warning, vision_warnings)
+    from ..drive import frames_warnings, read_frame_times, vision_warnings
     from ..errors import InputError
     from . import settle_heap
 
@@ -75,10 +74,7 @@ def run(args: argparse.Namespace) -> int:
         options = replace(options, method=args.method) if args.method == "alrazouk" else \
             options_from_table({**table, "preset": "damon2018"}, str(args.config))
     frames = read_frame_times(args.frames, cfg.video, None if args.frames else count_frames(args.video))
-    warnings = [w for w in ((frames_unlisted_warning(args.video, frames, str(args.frames), cfg.video.fps),
-                             frames_spacing_warning(frames, str(args.frames), args.video),
-                             frames_skipped_warning(frames, str(args.frames))) if args.frames
-                            else (video_cut_warning(args.video, len(frames)),)) if w]
+    warnings = frames_warnings(args.video, frames, args.frames, cfg.video.fps)
     if args.can is not None:
         frames = frames.assign(speed_m_s=_wheel_speeds(args, cfg, frames["t_s"].to_numpy()))
     elif args.dbc is not None:
