@@ -131,10 +131,20 @@ class Table:
             raise self.error(unknown[0], f"is not used together with the keys given "
                                          f"({', '.join(sorted(k for k in self._read if k in self.data))}): one or the other")
         if unknown:
-            known = sorted(self._read | self._known)
-            close = difflib.get_close_matches(unknown[0], known, n=1)
-            hint = f"did you mean {close[0]}? " if close else ""
-            raise self.error(unknown[0], f"is not a known key ({hint}known: {', '.join(known) or 'none'})")
+            raise self._not_known(unknown[0], sorted(self._read | self._known))
+
+    def reject_unknown(self, keys) -> None:
+        """Raise for a key the table holds that is not one of ``keys``, before any other check
+        can say something less to the point (a required key missing, where the unknown one was
+        its typo)."""
+        stray = sorted(set(self.data) - set(keys))
+        if stray:
+            raise self._not_known(stray[0], sorted(keys))
+
+    def _not_known(self, key: str, known: list):
+        close = difflib.get_close_matches(key, known, n=1)
+        hint = f"did you mean {close[0]}? " if close else ""
+        return self.error(key, f"is not a known key ({hint}known: {', '.join(known) or 'none'})")
 
 
 _KIND_TEXT = {
@@ -181,6 +191,8 @@ def parse_camera(t: Table) -> Camera:
         dist = t.get("distortion", "floats", (0.0,) * 5)
         t.done()
         return _build(t.source, "camera", lambda: Camera.from_fov(width, height, hfov, distortion=dist))
+    if not t.has("fx"):   # a typo of hfov_deg (hfov_dg) is named as one, not as fx missing (a review)
+        t.reject_unknown(("width", "height", "fx", "fy", "cx", "cy", "hfov_deg", "distortion"))
     fx = t.get("fx", "float", min=1e-9)
     fy = t.get("fy", "float", fx, min=1e-9)
     for key, f, size in (("fx", fx, width), ("fy", fy, height)):

@@ -130,11 +130,15 @@ def test_car_drive_with_distortion_png_frames_and_no_pitch_rate(drives):
     ('width = "wide"', "width"),
     ("duration_s = -3", "duration_s"),
     ("[[motion.manoeuvre]]\nkind = \"wheelie\"\nstart_m = 1\nlength_m = 10", "kind"),
+    ("hfov_dg", "hfov_dg"),    # a typo of hfov_deg: named, with the key meant (it said 'fx is missing')
 ])
 def test_bad_scenario_is_one_line_naming_the_key(tmp_path, edit, key):
     src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
     table = {"heigth_m = 1.1": "[mount]", 'width = "wide"': "[camera]", "duration_s = -3": "[scenario]"}.get(edit)
-    if table:
+    if edit == "hfov_dg":
+        bad = src.replace("hfov_deg", "hfov_dg", 1)
+        assert bad != src
+    elif table:
         bad = src.replace(table + "\n", table + "\n" + edit + "\n", 1)
         if key in ("width", "duration_s"):
             bad = bad.replace(f"{key} = 320\n", "", 1).replace(f"{key} = 2.0\n", "", 1)
@@ -146,6 +150,7 @@ def test_bad_scenario_is_one_line_naming_the_key(tmp_path, edit, key):
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and key in lines[0], r.stderr
+    assert edit != "hfov_dg" or "did you mean hfov_deg?" in lines[0], r.stderr
     assert "Traceback" not in r.stderr
     assert not (tmp_path / "out").exists()
 
