@@ -149,12 +149,23 @@ def live_latency(duration_s: float) -> np.ndarray:
     return np.array(lat)
 
 
+def _positive(kind):
+    """An argparse type: a number of ``kind`` above 0 (0 repeats had ended in a traceback of
+    the median of nothing, 0 frames in one of an empty log, a review)."""
+    def parse(text: str):
+        value = kind(text)
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be above 0, got {text}")
+        return value
+    return parse
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=1_000_000)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--frames", type=_positive(int), default=1_000_000)
+    ap.add_argument("--repeats", type=_positive(int), default=3)
     ap.add_argument("--file", type=Path, default=None)
-    ap.add_argument("--live", type=float, default=None, metavar="SECONDS",
+    ap.add_argument("--live", type=_positive(float), default=None, metavar="SECONDS",
                     help="measure the live path's arrival-to-yield latency instead")
     args = ap.parse_args(argv)
     if args.live:

@@ -78,12 +78,20 @@ def drive_key(scenario: bytes) -> str:
     return h.hexdigest()[:12]
 
 
+def cached_drive_folder(name: str) -> Path:
+    """Where scenario ``name``'s drive of the current simulator is cached (rendered or not)."""
+    path = SCENARIOS / f"{name}.toml"
+    if not path.is_file():
+        raise SystemExit(f"error: no scenario {name} ({path})")
+    return CACHE / f"full-{name}-{drive_key(path.read_bytes())}"
+
+
 def cached_full_drive(name: str) -> Path:
     from drivesim.drive import simulate
     from drivesim.scenario import load_scenario
 
     path = SCENARIOS / f"{name}.toml"
-    folder = CACHE / f"full-{name}-{drive_key(path.read_bytes())}"
+    folder = cached_drive_folder(name)
     if not (folder / "config.toml").exists():
         simulate(load_scenario(path), folder, overwrite=True)
     return folder

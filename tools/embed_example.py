@@ -49,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     drive = args.drive
+    if not (drive / "config.toml").is_file() or not (drive / "frames.csv").is_file():
+        ap.error(f"{drive}: not a drive folder as 'vifusion simulate' writes it (config.toml, frames.csv, ...)")
     live = LiveFusion(drive / "config.toml")           # a config file's path, or a DriveConfig
     frames = pd.read_csv(drive / "frames.csv")         # capture times on the bus clock
     bus_t = [-math.inf]                                # the newest IMU sample's time (the bus clock)

@@ -64,12 +64,17 @@ def evaluate(name: str, runs: Path | None = None, options=None, truth_inputs=())
     from fusion.pipeline import fuse
     from imu import read_log
 
-    from bench_fusion import cached_full_drive
+    from bench_fusion import cached_drive_folder
 
-    drive = cached_full_drive(name)   # the drive of the current simulator (rendered if missing)
+    drive = cached_drive_folder(name)   # the drive of the current simulator, as the bench left it
+    run_vision = (runs or drive.parent) / (drive.name + "-run") / "vision.csv"
+    if not (drive / "config.toml").is_file() or not run_vision.is_file():
+        # (it had rendered a drive for minutes, then stopped at the missing run: a review)
+        raise SystemExit(f"error: no cached drive and run of {name} ({run_vision}): run "
+                         "tools/bench_fusion.py first, which renders and runs it")
     cfg = load_config(drive / "config.toml")
     imu, _ = read_log(next(drive.glob("can.*")), cfg.can, cfg.imu)
-    vision = pd.read_csv((runs or drive.parent) / (drive.name + "-run") / "vision.csv")
+    vision = pd.read_csv(run_vision)
     truth = pd.read_csv(drive / "truth.csv")
     vision = with_truth(vision, truth, truth_inputs)
     opts = options or fusion_options_from_table(cfg.extra.get("fusion"))[0]

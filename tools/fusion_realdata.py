@@ -189,6 +189,7 @@ def gyro_drift(name: str, imu: pd.DataFrame, truth: pd.DataFrame) -> None:
 
 
 def main(argv=None) -> int:
+    from fusion.errors import FusionError
     from imu.errors import ImuError
     from imu import read_oxts
 
@@ -198,6 +199,10 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, help="write <name>/fused.csv and the reports here")
     args = p.parse_args(argv)
     try:
+        if args.out is not None:   # said before the work, as the commands do (a review: a traceback after it)
+            from fusion.cli import check_output_file
+
+            check_output_file(args.out / "x")
         kitti = read_oxts(args.kitti)
         table("kitti_oxts", *kitti, args.out)
         residuals("kitti_oxts", *kitti)
@@ -209,7 +214,7 @@ def main(argv=None) -> int:
         gyro_drift("comma2k19_phone_imu", *comma)
         # a phone's MEMS accelerometer: a zero-g offset of tens of mg, not a calibrated unit's 3 mg
         table("comma2k19_phone_imu_phone_prior", *comma, args.out, accel_bias_m_s2=0.2)
-    except ImuError as exc:
+    except (ImuError, FusionError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0
