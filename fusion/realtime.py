@@ -94,6 +94,7 @@ class LiveFusion:
         #: accelerometer value are the stream's ``counts["imu_invalid"]``.)
         self.counts = dict(frames_out_of_order=0, frames_bad_time=0, clock_restarts=0)
         self.warnings: list[str] = []
+        self._decoder_said = 0                 # the decoder's warnings copied into ours
         if self.settings.estimate_time_offset:
             self.warnings.append("[fusion] estimate_time_offset needs the whole drive and is not done live: "
                                  f"camera_time_offset_s = {self.settings.camera_time_offset_s:g} s is used")
@@ -131,6 +132,9 @@ class LiveFusion:
                 if s.fresh_speed and math.isfinite(s.speed_m_s):
                     self._speeds.append((s.t_s, s.speed_m_s))
             self.samples += n
+            if len(self.decoder.warnings) > self._decoder_said:   # the bus's own (frames out of order)
+                self.warnings += self.decoder.warnings[self._decoder_said:]
+                self._decoder_said = len(self.decoder.warnings)
         return n
 
     def push_frame(self, t_s: float, image) -> VisionEstimate:

@@ -53,6 +53,9 @@ QUIET_BUS_MARGIN_S = 0.02
 #: the stream for good. (A single frame stamped far ahead of its neighbours is a glitch, which
 #: the glitch gate drops before it gets here: :data:`SUSPECT_WAIT_S`.)
 CLOCK_RESET_AFTER = 20
+#: Frames dropped as running backwards, beyond 10 and this share of the mapped frames, put a line
+#: in :attr:`StreamDecoder.warnings` (the log path stops with an error at the same share).
+BACKWARDS_WARN_FRACTION = 0.01
 
 #: How long frames wait behind a frame stamped more than ``gap_limit_s`` after the previous one
 #: of its ID, for that ID's next frame to say whether the stamp was a glitch (the next is more
@@ -171,6 +174,10 @@ class StreamDecoder:
         self._gate: deque[tuple] = deque()        # frames that came after it, in arrival order
         #: Times the bus clock was taken to have restarted (:data:`CLOCK_RESET_AFTER`).
         self.clock_resets = 0
+        #: What the stream said of itself (frames out of time order dropped): the log path's
+        #: errors, as lines, since a live bus cannot be refused.
+        self.warnings: list[str] = []
+        self._backwards, self._backwards_said = 0, False
         self._src = [_SourceCount() for _ in self.plan.sources]
         self._msg_counts: dict[int, dict[str, int]] = {fid: {} for fid in self._by_id}
         self._open: deque[_Group] = deque()
@@ -289,6 +296,16 @@ class StreamDecoder:
             if self._backwards_in_row < CLOCK_RESET_AFTER:
                 counts = self._msg_counts[aid]
                 counts["backwards"] = counts.get("backwards", 0) + 1
+                self._backwards += 1
+                if not self._backwards_said and self._backwards > max(10, BACKWARDS_WARN_FRACTION * self.frames_mapped):
+                    self._backwards_said = True
+                    # frames of different IDs a little out of order (a merged or buffering logger):
+                    # each one dropped, a source silenced without a word (a review: a wheel speed 1 ms
+                    # late gave no speed for a whole drive; the log path refuses such a log)
+                    self.warnings.append(
+                        f"{self._backwards} of {self.frames_mapped} mapped frames dropped as running backwards in "
+                        f"time (first kind: 0x{aid:X}, {self._last_t - t:.6f} s behind): frames of different IDs "
+                        "out of order on the bus? [can] reorder_tolerance_s takes them in time order")
                 return []
             out = self._release(math.inf, received_s)     # the old clock's held frames first
             self._reset_clock()
@@ -590,6 +607,11 @@ class LiveSource:
 
     def summary(self) -> Summary:
         return self.decoder.summary(f"live bus {getattr(self.bus, 'channel_info', '')}".strip())
+
+    @property
+    def warnings(self) -> list[str]:
+        """What the stream said of itself (:attr:`StreamDecoder.warnings`)."""
+        return self.decoder.warnings
 
     def __iter__(self) -> Iterator[ImuSample]:
         dec = self.decoder
