@@ -35,6 +35,7 @@ import os
 import threading
 from collections import deque
 
+import can
 import numpy as np
 
 from imu import StreamDecoder
@@ -110,8 +111,13 @@ class LiveFusion:
         """One CAN message (python-can ``Message``); returns how many IMU samples it released
         that the filter used (a sample missing a gyro or accelerometer value is skipped and
         counted in ``stream.counts["imu_invalid"]``)."""
-        if not hasattr(msg, "arbitration_id") or not hasattr(msg, "data"):
+        if not isinstance(msg, can.Message):
+            # (an object with only an ID and data had failed inside the decoder: a review)
             raise TypeError(f"push_can takes a python-can Message, got {type(msg).__name__}")
+        if isinstance(msg.arbitration_id, bool) or not isinstance(msg.arbitration_id, int) \
+                or isinstance(msg.timestamp, bool) or not isinstance(msg.timestamp, (int, float)):
+            raise TypeError(f"push_can takes a python-can Message with an integer arbitration_id and a number "
+                            f"as timestamp, got {msg.arbitration_id!r} and {msg.timestamp!r}")
         n = 0
         with self._lock:
             for s in self.decoder.push(msg, received_s):

@@ -368,7 +368,12 @@ def test_caller_mistakes_are_type_errors_that_say_what_was_expected(sample_offli
     naming the method and what it takes. A NaN stamp is a number: counted as a bad time."""
     cfg, _, frames, _, _ = sample_offline
     live = LiveFusion(cfg)
+    from collections import namedtuple
+
+    duck = namedtuple("NT", "arbitration_id data timestamp")(0x174, b"\0" * 8, 1.0)   # not a Message (a review)
     for call, words in ((lambda: live.push_can(None), "push_can takes a python-can Message"),
+                        (lambda: live.push_can(duck), "push_can takes a python-can Message, got NT"),
+                        (lambda: live.push_can(can.Message(timestamp=None)), "a number as timestamp"),
                         (lambda: live.push_frame(0.0, None), "push_frame takes the frame as a numpy image"),
                         (lambda: live.push_frame(None, frames[0][1]), "push_frame takes the capture time"),
                         (lambda: live.push_vision(0.0, (0.0, 0.0, 0.0)), "push_vision takes a vision.VisionEstimate")):
