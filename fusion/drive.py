@@ -210,11 +210,10 @@ def video_container(video: Path) -> tuple[int, float | None] | None:
         return None
 
 
-def video_cut_warning(video: Path, n_read: int) -> str | None:
-    """A warning when a video's container announces more frames than could be decoded (a file
-    cut short: without frames.csv, which would list the frames, it had read as whole, a review),
-    or None."""
-    container = video_container(video)
+def video_cut_warning(video: Path, n_read: int, container) -> str | None:
+    """A warning when a video's container (:func:`video_container`) announces more frames than
+    could be decoded (a file cut short: without frames.csv, which would list the frames, it had
+    read as whole, a review), or None."""
     if container is None or container[0] <= n_read:
         return None
     return (f"{video}: its container announces {container[0]} frames, {n_read} could be read "
@@ -234,27 +233,27 @@ VISION_VALID_WARN = 0.5
 def vision_warnings(video, vision: pd.DataFrame, stats: dict, n_listed: int, listed_by: str) -> list[str]:
     """What a command says of the vision's result: listed frames the video did not give
     (``stats``: :func:`vision.video.estimate_video`'s; ``listed_by`` says who listed them:
-    frames.csv, or the video's header for a truncated file), and a vision valid on under
-    :data:`VISION_VALID_WARN` of its frames, with the commonest reason."""
+    frames.csv, or the count of the video's frames), and a vision valid on under
+    :data:`VISION_VALID_WARN` of its frames (none among none included), with the commonest
+    reason."""
     out = []
     if stats.get("frames_missing"):
         out.append(f"{video}: {stats['frames_read']} frames could be read; {stats['frames_missing']} of the "
                    f"{n_listed} frames {listed_by} are not among them (not processed)")
     n_valid = int(vision["valid"].sum()) if len(vision) else 0
-    if len(vision) and n_valid < VISION_VALID_WARN * len(vision):
-        reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts()
+    if n_valid < VISION_VALID_WARN * len(vision) or not len(vision):
+        reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts() if len(vision) else ()
         why = f" (mostly: {reasons.index[0]})" if len(reasons) else ""
         out.append(f"vision valid on {n_valid} of {len(vision)} frames{why}")
     return out
 
 
-def frames_spacing_warning(frames: pd.DataFrame, frames_name: str, video: Path | None = None) -> str | None:
+def frames_spacing_warning(frames: pd.DataFrame, frames_name: str, container=None) -> str | None:
     """A warning when frames.csv's times disagree with its frame numbers: intervals whose time
     per frame number is off the median by more than :data:`FRAME_PERIOD_TOLERANCE` (a jump of
     half a second between two consecutive 30 fps frames), or a median period off the rate of
-    ``video``'s container by more than that (360 frames 1 ns apart); None when they agree. A
-    review found both fused at those times without a word."""
-    container = video_container(video) if video is not None else None
+    the video's ``container`` (:func:`video_container`) by more than that (360 frames 1 ns
+    apart); None when they agree. A review found both fused at those times without a word."""
     video_fps = container[1] if container is not None else None
     t = frames["t_s"].to_numpy(dtype=float)
     f = frames["frame"].to_numpy(dtype=float)
@@ -299,21 +298,24 @@ def frames_skipped_warning(frames: pd.DataFrame, frames_name: str) -> str | None
 def frames_warnings(video: Path, frames: pd.DataFrame, frames_csv: Path | None, fps: float) -> list[str]:
     """What a command says of the frames it is to process, before the vision runs: with
     ``frames_csv``, its unlisted tail, its times against its frame numbers and frames it steps
-    over; without, a video that decodes to fewer frames than its container announces."""
+    over; without, a video that decodes to fewer frames than its container announces. The
+    container is read once for them all."""
+    container = video_container(video)
     if frames_csv is None:
-        said = (video_cut_warning(video, len(frames)),)
+        said = (video_cut_warning(video, len(frames), container),)
     else:
         name = str(frames_csv)
-        said = (frames_unlisted_warning(video, frames, name, fps), frames_spacing_warning(frames, name, video),
-                frames_skipped_warning(frames, name))
+        said = (frames_unlisted_warning(video, frames, name, fps, container),
+                frames_spacing_warning(frames, name, container), frames_skipped_warning(frames, name))
     return [w for w in said if w]
 
 
-def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str, fps: float) -> str | None:
+def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str, fps: float,
+                            container=None) -> str | None:
     """A warning when the video holds more than a second of frames after the last one that
     ``frames`` lists (a frames.csv cut short: the frames after it are not processed), or None.
-    The video's length is its container's frame count (a folder's pictures), read without
-    decoding; a container without one is not checked. The time a video frame takes is the
+    The video's length is its ``container``'s frame count (:func:`video_container`, read
+    without decoding; a folder's pictures); a video without one is not checked. The time a video frame takes is the
     listed frames' (their time span over their number span: a listing of every n-th frame is
     as good), or ``1 / fps`` when one frame is listed (``[video] fps``, the container's rate)."""
     if not len(frames):
@@ -327,10 +329,9 @@ def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str,
         return None
     if src.files is not None:
         n_video = len(src.files)
+    elif container is None:
+        return None
     else:
-        container = video_container(video)
-        if container is None:
-            return None
         n_video, fps = container[0], container[1] or fps
     t = frames["t_s"].to_numpy(dtype=float)
     f = frames["frame"].to_numpy(dtype=float)
