@@ -320,15 +320,16 @@ def _table_html(summary: dict) -> str:
         cols = ["roll", "pitch", "yaw", "bank", "roll_world", "pitch_world"]
         head = "".join(f"<th>{c}</th>" for c in cols)
         rows.append(f"<h2>RMSE against truth [deg] (after {CONVERGENCE_S:g} s)</h2><table><tr><th>source</th>{head}</tr>")
+        # a source without a value is said under the table, not shown as a row of blanks
+        none = [src for src, vals in acc.items()
+                if not any(math.isfinite((vals or {}).get(c, math.nan)) for c in cols)]
         for src, vals in acc.items():
-            if not vals or not any(math.isfinite(vals.get(c, math.nan)) for c in cols):
-                continue      # said under the table, not a row of blanks
+            if src in none:
+                continue
             cells = "".join(f"<td>{vals[c]:.3f}</td>" if c in vals and math.isfinite(vals[c]) else "<td></td>"
                             for c in cols)
             rows.append(f"<tr><td>{html.escape(src)}</td>{cells}</tr>")
         rows.append("</table>")
-        none = [src for src, vals in acc.items() if not vals or not any(math.isfinite(vals.get(c, math.nan))
-                                                                        for c in cols)]
         if none:
             rows.append(f"<p>No RMSE of {html.escape(', '.join(none))}: no value to score (no valid vision frame, "
                         "or the truth has none of its angles).</p>")
