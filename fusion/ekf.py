@@ -1081,11 +1081,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
 
 @nb.njit(cache=True)
-def _specific_force_terms(x, gyro, gyro_dot, rho, road_rate, has_q):
-    """The specific-force model's value ``f`` (:meth:`AttitudeEKF.specific_force_model`) and the
-    terms its analytic Jacobian columns take: ``(f, (p, q, r), (sin, cos of the relative roll,
-    sin, cos of the relative pitch), (e, its rate, f less the lever arm and biases), (A, R),
-    (sin, cos of roll_w, sin, cos of pitch_w))``."""
+def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
+    """Specific-force model and Jacobian; see :meth:`AttitudeEKF.specific_force_model`."""
     g = GRAVITY_M_S2
     phi, theta, v, a = x[0], x[1], x[8], x[9]
     sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
@@ -1122,16 +1119,6 @@ def _specific_force_terms(x, gyro, gyro_dot, rho, road_rate, has_q):
     f[0] = fx + wdy * rz - wdz * ry + q * cz - r * cy + x[11]
     f[1] = fy + wdz * rx - wdx * rz + r * cx - p * cz + x[12]
     f[2] = fz + wdx * ry - wdy * rx + p * cy - q * cx + x[13]
-    return f, (p, q, r), (so, co, sto, cto), (ex, ey, ez, fx, fy, fz), (A, R), (sf, cf, st, ct)
-
-
-@nb.njit(cache=True)
-def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
-    """Specific-force model and Jacobian; see :meth:`AttitudeEKF.specific_force_model`."""
-    g = GRAVITY_M_S2
-    f, (p, q, r), (so, co, sto, cto), (ex, ey, ez, fx, fy, fz), (A, R), (sf, cf, st, ct) = \
-        _specific_force_terms(x, gyro, gyro_dot, rho, road_rate, has_q)
-    v, a = x[8], x[9]
     # Jacobian. Rates enter through w x e and through de (the relative Euler rates):
     # df/dw = v (-[e]x + de/dtheta_o (0, cos, -sin) + de/dphi_o (1, tan sin, tan cos)); the
     # two cancel for a body pitching relative to its path, so a pitch-rate bias does not
