@@ -100,14 +100,15 @@ def run(args: argparse.Namespace) -> int:
             stale.unlink()
     calibration = (args.calibration, cal) if cal is not None else None
     rows = []
-    i, current = 0, calibration
+    i = 0
     try:
         for i, (drive, name) in enumerate(zip(args.drives, names)):
-            current = calibration
             calibration = _one_drive(args, drive, name, calibration, rows)
             write_tables(_table(rows, args.drives, "not run"), args.out / "campaign")
-    except KeyboardInterrupt:   # the drive interrupted while it ran keeps the calibration it started from
-        write_tables(_table(rows, args.drives, "not run: interrupted", current if len(rows) == i else None),
+    except KeyboardInterrupt:
+        # a drive interrupted while it ran (no row yet) keeps the calibration it started from:
+        # the interrupt left ``calibration`` as it was passed in
+        write_tables(_table(rows, args.drives, "not run: interrupted", calibration if len(rows) == i else None),
                      args.out / "campaign")
         raise
     table = _table(rows, args.drives, "not run")
