@@ -8,7 +8,7 @@ table of a KITTI OXTS recording (:mod:`imu.oxts`).
 """
 
 from .config import ACCEL, CHANNELS, GYRO, CanMapping, ImuMount
-from .errors import DecodeError, ImuConfigError, ImuError
+from .errors import BusError, DecodeError, ImuConfigError, ImuError
 from .units import si_factor
 
 __all__ = [
@@ -17,7 +17,7 @@ __all__ = [
     "load_dbc", "resolve", "DecodePlan", "si_factor",
     "COLUMNS", "VALUE_COLUMNS", "FRESH_COLUMNS", "ImuSample", "Summary", "SourceStats", "ChannelStats", "Gap",
     "samples_frame",
-    "ImuError", "ImuConfigError", "DecodeError",
+    "ImuError", "ImuConfigError", "DecodeError", "BusError",
 ]
 
 #: What loads on first use (python-can, asammdf, cantools, pandas: half a second of imports that

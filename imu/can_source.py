@@ -34,6 +34,7 @@ import can
 
 from .config import ACCEL, CHANNELS, GYRO, CanMapping, ImuMount
 from .dbc import DecodePlan, resolve
+from .errors import BusError
 from .decode import decode_frame
 from .samples import (
     VALUE_COLUMNS, ChannelStats, Gap, ImuSample, SourceStats, Summary, unavailable_channels,
@@ -580,21 +581,34 @@ class LiveSource:
     db : cantools Database, optional
     poll_s : float
         Longest wait in ``bus.recv``, s; bounds how late :meth:`stop` and quiet-bus samples are.
+    imu_timeout_s : float, optional
+        Longest time without a frame of the IMU's messages (the DBC messages ``[can.signals]``
+        maps), s, counted from the start of the iteration; then the samples still open are
+        yielded and :class:`imu.BusError` is raised. ``None`` (the default) waits for ever: a
+        bus may be quiet before the vehicle starts. Other traffic does not count: a dead IMU on
+        a busy bus is still a dead IMU.
+
+    A ``bus.recv`` that fails (a bus closed from another thread, a driver error) ends the
+    iteration the same way: the open samples first, then :class:`imu.BusError` naming the bus,
+    the frames read and python-can's message (chained). Iterating again goes on reading.
 
     Examples
     --------
-    >>> src = LiveSource(bus, cfg.can, cfg.imu)            # doctest: +SKIP
-    >>> for sample in src:                                   # doctest: +SKIP
+    >>> src = LiveSource(bus, cfg.can, cfg.imu, imu_timeout_s=0.5)   # doctest: +SKIP
+    >>> for sample in src:                                           # doctest: +SKIP
     ...     ekf.predict(sample.t_s, sample.gyro_z_rad_s)
     """
 
     def __init__(self, bus: can.BusABC, mapping: CanMapping, mount: ImuMount, db: Any | None = None,
-                 *, poll_s: float = 0.01) -> None:
+                 *, poll_s: float = 0.01, imu_timeout_s: float | None = None) -> None:
         if not poll_s > 0:
             raise ValueError(f"poll_s must be > 0, got {poll_s}")
+        if imu_timeout_s is not None and not imu_timeout_s > 0:
+            raise ValueError(f"imu_timeout_s must be > 0 s or None, got {imu_timeout_s}")
         self.bus = bus
         self.decoder = StreamDecoder(mapping, mount, db)
         self.poll_s = poll_s
+        self.imu_timeout_s = imu_timeout_s
         self._stop = threading.Event()
 
     @property
@@ -605,8 +619,11 @@ class LiveSource:
         """Make the iteration end (thread-safe); the samples still open are yielded first."""
         self._stop.set()
 
+    def _name(self) -> str:
+        return f"live bus {getattr(self.bus, 'channel_info', '')}".strip()
+
     def summary(self) -> Summary:
-        return self.decoder.summary(f"live bus {getattr(self.bus, 'channel_info', '')}".strip())
+        return self.decoder.summary(self._name())
 
     @property
     def warnings(self) -> list[str]:
@@ -618,11 +635,26 @@ class LiveSource:
         recv = self.bus.recv
         clock = time.perf_counter
         wait_max = self.poll_s
+        timeout = self.imu_timeout_s
+        heard_s, mapped = clock(), dec.frames_mapped
         while not self._stop.is_set():
-            msg = recv(timeout=min(wait_max, max(0.0, dec.next_expiry_s() - clock())))
+            now = clock()
+            try:
+                msg = recv(timeout=min(wait_max, max(0.0, dec.next_expiry_s() - now)))
+            except (can.CanError, OSError) as exc:
+                yield from dec.flush()
+                raise BusError(f"{self._name()}: receiving failed after {dec.frames_read} frames: {exc}") from exc
+            now = clock()
             if msg is not None:
-                yield from dec.push(msg, clock())
+                yield from dec.push(msg, now)
             if dec.next_expiry_s() < math.inf:
-                yield from dec.expire(clock())
+                yield from dec.expire(now)
+            if timeout is not None:
+                if dec.frames_mapped != mapped:
+                    heard_s, mapped = now, dec.frames_mapped
+                elif now - heard_s > timeout:
+                    yield from dec.flush()
+                    raise BusError(f"{self._name()}: no frame of the IMU's messages for {now - heard_s:.2f} s "
+                                   f"(imu_timeout_s = {timeout:g}; {dec.frames_read} frames read)")
         yield from dec.flush()
 

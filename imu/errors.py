@@ -1,6 +1,6 @@
 """Exceptions of the imu package."""
 
-__all__ = ["ImuError", "ImuConfigError", "DecodeError"]
+__all__ = ["ImuError", "ImuConfigError", "DecodeError", "BusError"]
 
 
 class ImuError(ValueError):
@@ -13,3 +13,8 @@ class ImuConfigError(ImuError):
 
 class DecodeError(ImuError):
     """A log or DBC that cannot be read; the message names the file, line or frame ID."""
+
+
+class BusError(ImuError):
+    """A live bus that failed (closed, a driver error) or whose IMU frames stopped for longer than
+    :class:`imu.LiveSource`'s ``imu_timeout_s``; raised after the samples still open are yielded."""

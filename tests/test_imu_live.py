@@ -166,3 +166,93 @@ def test_clock_glitch_on_a_live_bus_is_dropped_as_the_log_path_drops_it(tmp_path
     for c in COLUMNS:
         x, y = table[c].to_numpy(), live[c].to_numpy()
         assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), c
+
+
+def _cut_log(tmp_path, seed: int, keep_rate: int) -> list[can.Message]:
+    """The frames of a short drive up to its ``keep_rate``-th rate frame (0x174), with the two
+    last rate frames' accel frames (0x178) left out: the second to last sample is closed by
+    the last rate frame, and the last sample is still open when the stream ends."""
+    imu, speed = sim_imu(duration_s=0.5, seed=seed)
+    drive = tmp_path / "drive.csv"
+    write_can_log(drive, imu, speed, extra_traffic=False)
+    msgs = list(can.LogReader(drive))
+    rate = [i for i, m in enumerate(msgs) if m.arbitration_id == 0x174]
+    return [m for i, m in enumerate(msgs[:rate[keep_rate] + 1])
+            if not (i > rate[keep_rate - 1] and m.arbitration_id == 0x178)]
+
+
+def _log_path(tmp_path, msgs):
+    path = tmp_path / "cut.csv"
+    with can.Logger(path) as w:
+        for m in msgs:
+            w.on_message_received(m)
+    return read_log(path, sim_mapping(), MOUNT_FRD)[0]
+
+
+def test_a_bus_closed_mid_stream_yields_its_open_sample_then_one_error(tmp_path):
+    """A bus shut down while the source reads it (here by the consumer, as another thread's
+    ``shutdown`` would): the sample still open is yielded, as at the end of a log, and the
+    iteration ends with BusError (python-can's error chained), not python-can's own exception
+    with the sample lost. The frames keep their log stamps (``preserve_timestamps``) so that the
+    last rate frame, 10 ms after the one before, closes that one's sample at once."""
+    from imu import BusError
+
+    msgs = _cut_log(tmp_path, seed=5, keep_rate=20)
+    table = _log_path(tmp_path, msgs)
+    assert len(table) == 21 and not table["fresh_accel_x"].iloc[-1]
+    channel = f"vifusion-{uuid.uuid4().hex[:8]}"
+    samples = []
+    with can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx:
+        rx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+        for m in msgs:
+            tx.send(m)
+        source = LiveSource(rx, sim_mapping(), MOUNT_FRD, poll_s=0.005)
+        with pytest.raises(BusError, match="receiving failed after") as err:
+            for sample in source:
+                samples.append(sample)
+                if len(samples) == len(table) - 1:
+                    rx.shutdown()   # the last rate frame is read: its sample is open
+    assert isinstance(err.value.__cause__, can.CanError)
+    live = samples_frame(samples)
+    assert len(live) == len(table), "the open sample is yielded before the error"
+    for c in COLUMNS:
+        x, y = table[c].to_numpy(), live[c].to_numpy()
+        assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), c
+
+
+def test_imu_timeout_ends_the_stream_when_the_imu_falls_silent_on_a_busy_bus(tmp_path):
+    """``imu_timeout_s``: the IMU's frames stop while another ID goes on every 10 ms (a dead IMU
+    on a live bus). The samples are all yielded, then BusError, no sooner than the timeout
+    after the last IMU frame and well before the sender stops (5 s)."""
+    from imu import BusError
+
+    msgs = _cut_log(tmp_path, seed=6, keep_rate=20)
+    table = _log_path(tmp_path, msgs)
+    channel = f"vifusion-{uuid.uuid4().hex[:8]}"
+    samples, done = [], threading.Event()
+    with can.Bus(interface="virtual", channel=channel) as tx, can.Bus(interface="virtual", channel=channel) as rx:
+        source = LiveSource(rx, sim_mapping(), MOUNT_FRD, poll_s=0.005, imu_timeout_s=0.3)
+
+        def send():
+            for m in msgs:
+                tx.send(can.Message(arbitration_id=m.arbitration_id, is_extended_id=m.is_extended_id, data=m.data))
+            sent_s.append(time.perf_counter())
+            while not done.wait(0.01):
+                tx.send(can.Message(arbitration_id=0x7E0, is_extended_id=False, data=b"\x01"))
+
+        sent_s = []
+        sender = threading.Thread(target=send, daemon=True)
+        sender.start()
+        try:
+            with pytest.raises(BusError, match=r"no frame of the IMU's messages for .* s \(imu_timeout_s = 0.3"):
+                for sample in source:
+                    samples.append(sample)
+            ended_s = time.perf_counter()
+        finally:
+            done.set()
+            sender.join(timeout=5)
+    assert len(samples) == len(table), "every sample of the frames sent, the open one too"
+    assert 0.3 <= ended_s - sent_s[0] < 5.0
+    assert source.summary().unknown_ids.get("0x7E0", 0) > 10, "the other traffic went on meanwhile"
+    with pytest.raises(ValueError, match="imu_timeout_s"):
+        LiveSource(rx, sim_mapping(), MOUNT_FRD, imu_timeout_s=0)
