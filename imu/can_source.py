@@ -203,10 +203,10 @@ class StreamDecoder:
         aid = msg.arbitration_id
         idx = self._by_id.get(aid)
         if idx is None:
-            if aid in self.plan.known_ids:
-                self.unmapped_frames += 1
-            elif msg.is_error_frame:
+            if msg.is_error_frame:   # its ID is the error's class, whatever the DBC names so
                 self.error_frames += 1
+            elif aid in self.plan.known_ids:
+                self.unmapped_frames += 1
             else:
                 key = f"0x{aid:X}"
                 self.unknown_ids[key] = self.unknown_ids.get(key, 0) + 1

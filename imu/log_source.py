@@ -620,11 +620,10 @@ def _read_mapped(path: Path, plan: DecodePlan, width: int, state: ReadState, bar
                 aid = msg.arbitration_id
                 if aid in mapped_ids:
                     hit(msg)
+                elif msg.is_error_frame:   # its ID is the error's class, whatever the DBC names so
+                    error_frames += 1
                 elif aid not in known:
-                    if msg.is_error_frame:
-                        error_frames += 1
-                    else:
-                        unknown.append(aid)
+                    unknown.append(aid)
             n_read += len(batch)
             state.messages = n_read
             if hits:

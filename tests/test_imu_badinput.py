@@ -335,10 +335,22 @@ def test_REMOTE_ERROR_and_EXTENDED_twins_are_skipped(tmp_path, clean):
     t = msgs[10].timestamp
     extra = [can.Message(timestamp=t, arbitration_id=0x174, is_extended_id=False, is_remote_frame=True, dlc=8),
              can.Message(timestamp=t, is_error_frame=True),
+             # an error frame whose class bits equal a DBC message's ID (ENGINE_2, unmapped):
+             # an error frame, not unmapped traffic, in the log and live alike
+             can.Message(timestamp=t, arbitration_id=0x500, is_error_frame=True),
              can.Message(timestamp=t, arbitration_id=0x174, is_extended_id=True, data=bytes(8))]
     bad = msgs[:11] + extra + msgs[11:]
     table, summary = read_log(_write(bad, tmp_path / "x.blf"), sim_mapping(), MOUNT_FRD)
-    assert summary.sources[0].remote == 1 and summary.error_frames == 1
+    assert summary.sources[0].remote == 1 and summary.error_frames == 2
+    n_unmapped = read_log(_write(msgs, tmp_path / "clean.blf"), sim_mapping(), MOUNT_FRD)[1].unmapped_frames
+    assert summary.unmapped_frames == n_unmapped
+    from imu import StreamDecoder
+
+    live = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    for m in bad:
+        live.push(m)
+    live.flush()
+    assert (live.error_frames, live.unmapped_frames) == (2, n_unmapped)
     assert summary.unknown_ids.get("0x174x") == 1
     assert len(table) == len(ref)
 
