@@ -245,6 +245,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--csv", default=None, help="write per-frame errors to this CSV")
     p.add_argument("--render-only", action="store_true", help="render the scenarios into the cache and stop")
     args = p.parse_args(argv)
+    if args.stride is not None and args.stride < 1:
+        p.error(f"--stride must be at least 1, got {args.stride}")
+    if args.damon_frames is not None and args.damon_frames < 1:
+        p.error(f"--damon-frames must be at least 1, got {args.damon_frames}")
+    known = configs(False)
+    if args.configs and set(args.configs.split(",")) - set(known):
+        p.error(f"--configs: unknown {sorted(set(args.configs.split(',')) - set(known))}; known: {', '.join(known)}")
 
     stride = args.stride or (4 if args.quick else 1)
     table = TABLE_I

@@ -134,6 +134,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--configs", default="default,planar", help="default and/or planar")
     p.add_argument("--csv", default=None, help="write per-frame results to this CSV")
     args = p.parse_args(argv)
+    if args.stride < 1:
+        p.error(f"--stride must be at least 1, got {args.stride}")
+    if set(args.configs.split(",")) - {"default", "planar"}:
+        p.error(f"--configs takes default and/or planar, got {args.configs}")
+    missing = [n for n in args.scenarios.split(",") if not (SCENARIOS / f"{n}.toml").is_file()]
+    if missing:
+        p.error(f"--scenarios: no {', '.join(missing)} in {SCENARIOS}")
 
     import cv2
 
