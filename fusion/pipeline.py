@@ -172,9 +172,10 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
         X[k], Pm[k] = stream.ekf.x, stream.ekf.P
         speed_known[k] = stream.speed_known
     if smooth:
-        xs, Ps = rts_smooth(stream.steps, *stream.start)
         at_sample = np.concatenate([[True], [s.imu_index >= 0 for s in stream.steps]])
-        X, Pm = xs[at_sample], Ps[at_sample]
+        del X, Pm      # the forward rows: the smoothed ones take their place
+        X, Pm = rts_smooth(stream.steps, *stream.start, keep=at_sample)
+        stream.steps.clear()
     rel_cov = relative_outputs(X, Pm)
     table = outputs_table(t, X, Pm, rel_cov)
     if not has_pitch_rate:

@@ -32,7 +32,7 @@ def _diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return d
 
 
-def rts_smooth(steps: list[StepRecord], x0: np.ndarray, P0: np.ndarray):
+def rts_smooth(steps: list[StepRecord], x0: np.ndarray, P0: np.ndarray, keep: np.ndarray | None = None):
     """Smooth the recorded steps of a :class:`fusion.engine.FusionStream` run.
 
     Parameters
@@ -40,31 +40,46 @@ def rts_smooth(steps: list[StepRecord], x0: np.ndarray, P0: np.ndarray):
     steps : list of StepRecord
         In time order; ``steps[k]`` propagates from step k-1 (or the initial state) to k.
     x0, P0 : the posterior at the first IMU sample (before the first step)
+    keep : (N + 1,) bool, optional
+        Which smoothed elements to return (element 0 is the first sample, element k + 1 the
+        state after ``steps[k]``); all by default. The recursion runs through every element.
 
     Returns
     -------
-    xs : (N + 1, n) smoothed states, xs[0] at the first sample, xs[k + 1] after steps[k]
-    Ps : (N + 1, n, n) their covariances
+    xs : (M, n) smoothed states of the kept elements, in time order
+    Ps : (M, n, n) their covariances
+
+    The recursion works one step at a time on the records and writes only the kept rows: its
+    memory is the output's, not five stacked copies of the records (an hour-long drive's
+    records are some 3 GB, 16 x 16 covariances at about 130 steps a second).
     """
     n = len(steps)
-    x_post = np.stack([x0] + [s.x_post for s in steps])
-    P_post = np.stack([P0] + [s.P_post for s in steps])
-    if n == 0:
-        return x_post, P_post
-    x_prior = np.stack([s.x_prior for s in steps])
-    P_prior = np.stack([s.P_prior for s in steps])
-    F = np.stack([s.F for s in steps])
-    try:
-        P_prior_inv = np.linalg.inv(P_prior)
-    except np.linalg.LinAlgError:
-        # a state held exactly (zero variance and zero process noise, e.g. a bias whose prior and
-        # walk were both set to 0): it takes no correction from later steps
-        P_prior_inv = np.linalg.pinv(P_prior, hermitian=True)
-    xs, Ps = x_post.copy(), P_post.copy()
+    keep = np.ones(n + 1, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+    if keep.shape != (n + 1,):
+        raise ValueError(f"keep must have {n + 1} elements, got {keep.shape}")
+    dim = len(x0)
+    m = int(keep.sum())
+    xs, Ps = np.empty((m, dim)), np.empty((m, dim, dim))
+    x_next, P_next = (steps[-1].x_post, steps[-1].P_post) if n else (x0, P0)
+    row = m - 1
+    if keep[n]:
+        xs[row], Ps[row] = x_next, P_next
+        row -= 1
     for k in range(n - 1, -1, -1):
         # smoothing element k (state after steps[k-1]) from element k+1 (after steps[k])
-        C = P_post[k] @ F[k].T @ P_prior_inv[k]
-        xs[k] = x_post[k] + C @ _diff(xs[k + 1], x_prior[k])
-        Ps[k] = P_post[k] + C @ (Ps[k + 1] - P_prior[k]) @ C.T
+        x_post, P_post = (steps[k - 1].x_post, steps[k - 1].P_post) if k else (x0, P0)
+        st = steps[k]
+        try:
+            P_prior_inv = np.linalg.inv(st.P_prior)
+        except np.linalg.LinAlgError:
+            # a state held exactly (zero variance and zero process noise, e.g. a bias whose
+            # prior and walk were both set to 0): it takes no correction from later steps
+            P_prior_inv = np.linalg.pinv(st.P_prior, hermitian=True)
+        C = P_post @ st.F.T @ P_prior_inv
+        x_next = x_post + C @ _diff(x_next, st.x_prior)
+        P_next = P_post + C @ (P_next - st.P_prior) @ C.T
+        if keep[k]:
+            xs[row], Ps[row] = x_next, P_next
+            row -= 1
     xs[:, _ANGLE_STATES] = wrap_angle(xs[:, _ANGLE_STATES])
     return xs, Ps
