@@ -99,6 +99,9 @@ class LiveFusion:
         if self.settings.estimate_time_offset:
             self.warnings.append("[fusion] estimate_time_offset needs the whole drive and is not done live: "
                                  f"camera_time_offset_s = {self.settings.camera_time_offset_s:g} s is used")
+        if self.settings.smooth:
+            self.warnings.append("[fusion] smooth needs the whole drive and is not done live: "
+                                 "the estimates are the forward filter's")
         self._lock = threading.RLock()
         self._speeds: deque = deque(maxlen=256)    # recent fresh wheel speeds: (t_s, m/s)
         self._last_frame = (math.nan, math.nan)    # the last frame: (t_s, speed then)

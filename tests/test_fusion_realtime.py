@@ -239,6 +239,10 @@ def test_repeated_frames_and_settings_it_cannot_honour(sample_offline):
 
     cfg2 = dataclasses.replace(cfg, extra={**cfg.extra, "fusion": {**cfg.extra.get("fusion", {}), "estimate_time_offset": True}})
     assert any("estimate_time_offset" in w for w in LiveFusion(cfg2).warnings)
+    # likewise the smoother (it was taken without a word, a review)
+    cfg3 = dataclasses.replace(cfg, extra={**cfg.extra, "fusion": {**cfg.extra.get("fusion", {}), "smooth": True}})
+    assert any("smooth needs the whole drive" in w for w in LiveFusion(cfg3).warnings)
+    assert not any("smooth" in w for w in LiveFusion(cfg).warnings)
 
 
 def test_incomplete_samples_live_as_offline(sample_offline, tmp_path):
