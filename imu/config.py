@@ -119,8 +119,10 @@ class CanMapping:
         for ch, ref in self.signals.items():
             if ch not in CHANNELS:
                 raise ImuConfigError(f"[can.signals] {ch}: unknown channel, expected one of {', '.join(CHANNELS)}")
-            if not isinstance(ref, str) or ref.count(".") != 1 or ref.startswith(".") or ref.endswith("."):
-                raise ImuConfigError(f'[can.signals] {ch} must be "MESSAGE.SIGNAL", got {ref!r}')
+            body = ref[1:] if isinstance(ref, str) and ref.startswith("-") else ref
+            if not isinstance(body, str) or body.count(".") != 1 or body.startswith((".", "-")) or body.endswith("."):
+                raise ImuConfigError(f'[can.signals] {ch} must be "MESSAGE.SIGNAL" (or "-MESSAGE.SIGNAL" for a '
+                                     f"signal counted the other way), got {ref!r}")
         for ch, unit in self.units.items():
             if ch not in self.signals:
                 raise ImuConfigError(f"[can.units] {ch}: no such mapped channel")

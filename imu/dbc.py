@@ -42,7 +42,9 @@ class SignalPlan:
     """One mapped channel: where it is and how to turn it into SI.
 
     ``factor_si`` multiplies the DBC physical value (``raw * scale + offset``) to rad/s, m/s^2
-    or m/s; ``resolution_si`` is one raw step in SI. ``minimum``/``maximum`` are the DBC's
+    or m/s, negative for a signal mapped as ``"-MESSAGE.SIGNAL"`` (counted the other way than
+    the IMU axis: the range check is on the DBC's value, before it); ``resolution_si`` is one
+    raw step in SI. ``minimum``/``maximum`` are the DBC's
     physical range (None where the DBC gives none). ``invalid_raw``: raw values (unsigned bits)
     that are no measurement: the signal's ``raw_invalid`` and the value-table entries named as
     such (:data:`INVALID_CHOICE`, e.g. ``VAL_ ... 65535 "SNA"``).
@@ -206,10 +208,12 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
         if channel not in mapping.signals:
             continue
         ref = mapping.signals[channel]
-        msg_name, sig_name = ref.split(".")
-        if ref in seen:
-            raise ImuConfigError(f"[can.signals] {channel} and {seen[ref]} both map {ref}")
-        seen[ref] = channel
+        negated = ref.startswith("-")   # the signal counts the other way than the IMU axis
+        bare = ref[1:] if negated else ref
+        msg_name, sig_name = bare.split(".")
+        if bare in seen:
+            raise ImuConfigError(f"[can.signals] {channel} and {seen[bare]} both map {bare}")
+        seen[bare] = channel
         try:
             msg = db.get_message_by_name(msg_name)
         except KeyError:
@@ -235,7 +239,7 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
         unit_override = mapping.units.get(channel)
         unit = unit_override if unit_override is not None else (sig.unit or "")
         where = f"[can.units] {channel}" if unit_override is not None else f"{name}: {ref}"
-        factor = si_factor(unit, channel, where)
+        factor = si_factor(unit, channel, where) * (-1.0 if negated else 1.0)
         if not (math.isfinite(float(sig.scale)) and sig.scale != 0 and math.isfinite(float(sig.offset))):
             raise ImuConfigError(f"{name}: {ref}: scale {float(sig.scale):g}, offset {float(sig.offset):g}: "
                                  "the scale must be a finite non-zero number and the offset finite")
@@ -246,7 +250,7 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
         lo, hi = sig.minimum, sig.maximum
         plan = SignalPlan(
             channel=channel, ref=ref, signal=sig, unit=unit, factor_si=factor,
-            resolution_si=abs(float(sig.scale)) * factor,
+            resolution_si=abs(float(sig.scale) * factor),
             minimum=None if lo is None else float(lo), maximum=None if hi is None else float(hi),
             invalid_raw=_invalid_raw(sig),
         )

@@ -884,7 +884,8 @@ def table_attrs(plan: DecodePlan, mount: ImuMount, summary: Summary) -> dict[str
     for vch, ich, sign in vehicle_channel_map(mount):
         if ich in plans:
             p = plans[ich][1]
-            by_col[col_of[vch]] = f"{'-' if sign < 0 else ''}{p.ref} [{p.unit}]"
+            negated = (sign < 0) != p.ref.startswith("-")
+            by_col[col_of[vch]] = f"{'-' if negated else ''}{p.ref.lstrip('-')} [{p.unit}]"
         else:
             by_col[col_of[vch]] = None
     return {

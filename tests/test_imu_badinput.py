@@ -369,6 +369,29 @@ def test_MAPPING_MISMATCH_names_the_signal(tmp_path, clean, signals, pattern):
     _one_line(e)
 
 
+def test_a_signal_mapped_with_a_minus_is_decoded_negated(tmp_path, clean):
+    """``"-MESSAGE.SIGNAL"``: a signal that counts the other way than its IMU axis (the RAV4's
+    right-positive lateral acceleration) comes out negated, bit for bit, and named so in the
+    table's attrs; its range check is the DBC's, on the value before the sign. A stray sign or a
+    signal mapped twice, with and without it, is a config error."""
+    _, _, msgs, ref, _ = clean
+    path = _write(msgs, tmp_path / "x.blf")
+    signals = dict(sim_mapping().signals)
+    flipped = dict(signals, accel_y="-" + signals["accel_y"], gyro_z="-" + signals["gyro_z"])
+    table, _ = read_log(path, dataclasses.replace(sim_mapping(), signals=flipped), MOUNT_FRD)
+    for c in table.columns:
+        want = -ref[c] if c in ("accel_y_m_s2", "gyro_z_rad_s") else ref[c]
+        assert np.array_equal(table[c].to_numpy(), want.to_numpy(), equal_nan=True), c
+    # MOUNT_FRD flips y and z already: the two signs cancel in the name
+    assert table.attrs["channels"]["accel_y_m_s2"].split(" ")[0] == signals["accel_y"]
+    for bad in ("--IMU_RATE.RateZ", "-.RateZ", "-IMU_RATE.", "-"):
+        with pytest.raises(ImuConfigError, match=r'must be "MESSAGE.SIGNAL" \(or "-MESSAGE.SIGNAL"'):
+            dataclasses.replace(sim_mapping(), signals=dict(signals, gyro_z=bad))
+    twice = dataclasses.replace(sim_mapping(), signals=dict(signals, gyro_y="-" + signals["gyro_z"]))
+    with pytest.raises(ImuConfigError, match="both map IMU_RATE.RateZ"):
+        read_log(path, twice, MOUNT_FRD)
+
+
 def test_UNKNOWN_UNIT_override():
     """An unknown unit in [can.units] is refused where the mapping is made (the config: its
     error then names the file), not when the log is decoded."""

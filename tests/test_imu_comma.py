@@ -52,6 +52,27 @@ def test_rates_and_ranges_are_plausible(decoded):
     assert summary.unknown_ids, "the RAV4 bus carries IDs the 2017 DBC does not describe"
 
 
+def test_lateral_acceleration_is_the_turn_s_in_the_vehicle_frame(decoded):
+    """On a highway the lateral specific force is the centripetal ``v r`` (a road's bank and the
+    body's roll add a few tenths of m/s^2 at most): on 1 s means, correlated with it at r > 0.7
+    and a slope of 0.8-1.4 (measured 0.86 and 1.07). The RAV4's ``KINEMATICS.ACCEL_Y`` counts to
+    the right, so the mapping is ``-KINEMATICS.ACCEL_Y``; before, it went into the vehicle's
+    left-positive y unflipped, r = -0.86, and the tests checked only its size (a review)."""
+    table, _ = decoded
+    t = table["t_s"].to_numpy()
+    fy = table["accel_y_m_s2"].to_numpy()
+    vr = table["speed_m_s"].ffill().to_numpy() * table["gyro_z_rad_s"].to_numpy()
+    ok = np.isfinite(fy) & np.isfinite(vr)
+    bins = np.floor((t[ok] - t[0]) / 1.0).astype(int)
+    count = np.bincount(bins)
+    use = count > 40                         # whole seconds (KINEMATICS at 83 Hz)
+    fy1 = np.bincount(bins, fy[ok])[use] / count[use]
+    vr1 = np.bincount(bins, vr[ok])[use] / count[use]
+    r = np.corrcoef(fy1, vr1)[0, 1]
+    slope = np.polyfit(vr1, fy1, 1)[0]
+    assert r > 0.7 and 0.8 < slope < 1.4, (r, slope)
+
+
 def test_yaw_rate_correlates_with_phone_gyro(decoded):
     """After time alignment (best lag within +-0.3 s), |r| > 0.7; the sign is negative because the
     phone's z axis points down while the CAN yaw rate (and the vehicle frame) is z up."""

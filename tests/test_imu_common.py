@@ -65,7 +65,7 @@ def comma_mapping(**kw) -> CanMapping:
     kw.setdefault("range_check", False)
     kw.setdefault("channel", "can0")
     return CanMapping(COMMA / "toyota_rav4_2017_pt_generated.dbc",
-                      {"gyro_z": "KINEMATICS.YAW_RATE", "accel_y": "KINEMATICS.ACCEL_Y",
+                      {"gyro_z": "KINEMATICS.YAW_RATE", "accel_y": "-KINEMATICS.ACCEL_Y",
                        "speed": "WHEEL_SPEEDS.WHEEL_SPEED_FL"}, **kw)
 
 
