@@ -73,10 +73,11 @@ def kitti():
 
 @needs_kitti
 def test_kitti_runs_and_finds_lanes(kitti):
-    """Ten real frames: lanes or a reason, no exception; lanes on some frames (4 of 10 pass the
-    plausibility checks today: 1, 2, 3, 25). No painted line bounds the lane on the right (a
-    kerb, then tram tracks), so on all four the right "line" is the kerb (2, 3, 25) or a rail
-    (1, 4.8 m right); the others see one line, a line 26 cm wide, lines too close, or fail."""
+    """Ten real frames: lanes or a reason, no exception; lanes on some frames (2 of 10 pass the
+    plausibility checks today: 1 and 25; 2 and 3 did too before `01f8844`, whose extra refinement
+    passes leave them one line, bisected by a review of the fifteenth session). No painted line
+    bounds the lane on the right (a kerb, then tram tracks), so the right "line" is the kerb (25)
+    or a rail (1, 4.8 m right); the others see one line, lines too close, or fail."""
     assert len(kitti) == 10
     assert all(r[1] or r[2] for r in kitti)
     assert sum(r[1] for r in kitti) >= 2
@@ -84,12 +85,17 @@ def test_kitti_runs_and_finds_lanes(kitti):
 
 @needs_kitti
 def test_kitti_pitch_agrees_with_oxts(kitti):
-    """Pitch relative to the road against OXTS pitch relative to level: within 2 deg (the road's
-    grade accounts for part of the difference; over these frames it is within 0.3 deg on 1, 2
-    and 25, 0.94 deg on frame 3). The lane direction needs only parallel lines: a kerb serves."""
+    """Pitch relative to the road against OXTS pitch relative to level: within 0.3 deg, measured
+    -0.11 deg on frame 1 and -0.01 on frame 25 (OXTS gives its pitch to 0.03 deg; the camera to
+    IMU calibration and the city street's grade, a few tenths, make the rest). OXTS pitch is 0.46
+    and 0.65 deg on these frames, so a pitch of 0 or of the wrong sign fails (the 2 deg allowed
+    before let both pass, a review). The lane direction needs only parallel lines: a kerb serves."""
+    checked = 0
     for i, valid, roll, pitch, oxts_roll, oxts_pitch in kitti:
         if valid:
-            assert abs(pitch - oxts_pitch) < 2.0, (i, pitch, oxts_pitch)
+            assert abs(pitch - oxts_pitch) < 0.3, (i, pitch, oxts_pitch)
+            checked += 1
+    assert checked >= 2
 
 
 # Roll, measured on the ten frames (2011_09_26_drive_0001, Karlsruhe, city; see the images):
@@ -100,7 +106,7 @@ def test_kitti_pitch_agrees_with_oxts(kitti):
 #   estimator's area widths make it 22 to 29 cm on 9 of 10 frames (frame 25, in shadow: 14 cm).
 # * Default options (the fixture): the pair is the dashed line with the kerb or a rail, neither
 #   a flat marking of any width, so eq. (8) has no true width ratio to use. Roll minus OXTS roll:
-#   frame 1 -2.3, 2 +7.8, 3 -1.1, 25 -4.5 deg.
+#   frame 1 -2.7, 25 -5.9 deg (fifteenth session; before `01f8844`: 1 -2.3, 2 +7.8, 3 -1.1, 25 -4.5).
 # * The rule widths on the two painted lines (RoadMarkings(3.25, 0.12, False, marker_widths_m=
 #   (0.25, 0.12, 0.12)), BEV limited to y in [-0.6, 8] m so the kerb is out of view; lane width
 #   3.25 m, RASt 06, the BEV's 3.1 to 3.5 m agreeing): with the default re-warps no frame is valid
