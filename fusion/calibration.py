@@ -15,10 +15,17 @@ drive of a campaign. ``vifusion run`` writes its end-of-drive bias estimates wit
     accel_bias_m_s2 = [0.0462, 0.0215, -0.0137]
     accel_bias_sigma_m_s2 = [0.0174, 0.019, 0.0112]
 
+    [imu]
+    axes = ["x", "-y", "-z"]
+    position_m = [0, 0, 0.5]
+
 and ``vifusion run --calibration FILE`` starts the next drive from it (the keys override the
-config's ``[fusion]``; they can also be written there). The sigmas are the filter's at the end
-of the drive: if the IMU was switched off in between, add its turn-on repeatability (datasheet)
-before reusing them.
+config's ``[fusion]``; they can also be written there). The biases are in the vehicle frame of
+the IMU as it was mounted, so ``[imu]`` records that mount: a drive whose ``[imu] axes`` differ
+is refused (:func:`apply_calibration`; the same biases turned by another mount are wrong by
+twice their size on a flipped axis). A file without ``[imu]`` (written before it was added, or by
+hand) is taken as it is. The sigmas are the filter's at the end of the drive: if the IMU was
+switched off in between, add its turn-on repeatability (datasheet) before reusing them.
 """
 
 from __future__ import annotations
@@ -29,16 +36,21 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from imu.config import ImuMount
+from imu.errors import ImuConfigError
+
 from .config import Table, read_toml
 from .ekf import NoiseModel, S
 from .errors import ConfigError
 from .files import write_bytes_atomically
 
 __all__ = ["CALIBRATION_KEYS", "calibration_table", "calibration_from_state", "pitch_gyro_prior_deg_s",
-           "write_calibration", "read_calibration"]
+           "write_calibration", "read_calibration", "apply_calibration"]
 
 #: The ``[fusion]`` keys of a calibration (vehicle frame).
 CALIBRATION_KEYS = ("gyro_bias_deg_s", "gyro_bias_sigma_deg_s", "accel_bias_m_s2", "accel_bias_sigma_m_s2")
+#: Where :func:`read_calibration` puts the file's ``[imu] axes`` (absent when it has none).
+MOUNT_KEY = "imu_axes"
 
 
 def pitch_gyro_prior_deg_s(noise: NoiseModel) -> tuple[float, float]:
@@ -83,34 +95,62 @@ def calibration_from_state(x: np.ndarray, P: np.ndarray,
             "accel_bias_m_s2": x[S.ACCEL_BIAS].tolist(), "accel_bias_sigma_m_s2": d[S.ACCEL_BIAS].tolist()}
 
 
-def write_calibration(table: dict[str, list[float]], path: str | Path, source: str = "") -> None:
+def write_calibration(table: dict[str, list[float]], path: str | Path, source: str = "",
+                      mount: ImuMount | None = None) -> None:
     """Write a calibration (:func:`calibration_table`, :func:`calibration_from_state`) as TOML,
-    under a temporary name, then renamed."""
+    under a temporary name, then renamed; with ``mount``, the IMU's ``[imu] axes`` and
+    ``position_m`` that the vehicle-frame biases belong to."""
     path = Path(path)
     lines = ["# IMU biases at the end of a vifusion run (vehicle frame); start the next drive of this IMU",
              "# from them with `vifusion run --calibration " + path.name + "`."]
     if source:
         lines.append(f"# from: {source}")
     lines.append("[fusion]")
-    lines += [f"{k} = [{', '.join(f'{x:.6g}' for x in v)}]" for k, v in table.items()]
+    lines += [f"{k} = [{', '.join(f'{x:.6g}' for x in v)}]" for k, v in table.items() if k != MOUNT_KEY]
+    if mount is not None:
+        lines += ["", "[imu]   # the mount these vehicle-frame biases belong to",
+                  "axes = [" + ", ".join(f'"{a}"' for a in mount.axes) + "]",
+                  "position_m = [" + ", ".join(f"{x:.6g}" for x in mount.position_m) + "]"]
     write_bytes_atomically(path, ("\n".join(lines) + "\n").encode())
 
 
 def read_calibration(path: str | Path) -> dict:
     """The ``[fusion]`` keys of a calibration file, checked: only :data:`CALIBRATION_KEYS`, each
-    three numbers, sigmas positive. Errors are one-line :class:`fusion.errors.ConfigError` naming
-    the file and key."""
+    three numbers, sigmas not negative (0: a bias held, as the config's ``[fusion]`` allows), and
+    under :data:`MOUNT_KEY` the ``[imu] axes`` of the mount when the file gives it. Errors are
+    one-line :class:`fusion.errors.ConfigError` naming the file and key."""
     data = read_toml(path)
-    extra = sorted(set(data) - {"fusion"})
+    extra = sorted(set(data) - {"fusion", "imu"})
     if extra:
-        raise ConfigError(f"{path}: [{extra[0]}] does not belong in a calibration file (only [fusion])")
+        raise ConfigError(f"{path}: [{extra[0]}] does not belong in a calibration file (only [fusion] and [imu])")
     t = Table(data.get("fusion", {}), "fusion", str(path))
-    out = {}
+    out: dict = {}
     for key in CALIBRATION_KEYS:
-        value = t.get(key, "floats", None, length=3, min=1e-9 if "sigma" in key else None)
+        value = t.get(key, "floats", None, length=3, min=0.0 if "sigma" in key else None)
         if value is not None:
             out[key] = list(value)
     t.done()
     if not out:
         raise ConfigError(f"{path}: [fusion] has none of {', '.join(CALIBRATION_KEYS)}")
+    if "imu" in data:
+        m = Table(data["imu"], "imu", str(path))
+        axes, position = m.get("axes", "strs", None, length=3), m.get("position_m", "floats", None, length=3)
+        m.done()
+        if axes is not None:
+            try:
+                out[MOUNT_KEY] = list(ImuMount(tuple(axes), tuple(position or (0.0, 0.0, 0.0))).axes)
+            except ImuConfigError as e:
+                raise ConfigError(f"{path}: {e}") from None
     return out
+
+
+def apply_calibration(fusion_table: dict, cal: dict, mount: ImuMount, source: str | Path) -> dict:
+    """``fusion_table`` with a calibration's keys (:func:`read_calibration`) over it, after
+    checking that the calibration was made with this drive's IMU axes (``source`` names it in
+    the error)."""
+    axes = cal.get(MOUNT_KEY)
+    if axes is not None and list(axes) != list(mount.axes):
+        raise ConfigError(f"{source}: a calibration of the IMU mounted with [imu] axes = {list(axes)}, "
+                          f"but this drive's are {list(mount.axes)}: its biases are in the vehicle frame of "
+                          "that mount")
+    return {**fusion_table, **{k: v for k, v in cal.items() if k != MOUNT_KEY}}

@@ -18,7 +18,7 @@ Example (a live bus; the README's "Embedding" has a whole program with a camera 
         ...
         live.push_frame(t_s, grey)        # whenever a frame has been captured (bus clock)
         est = live.estimate()             # Estimate with 1-sigma, rad
-    write_calibration(live.calibration(), "calibration.toml")   # when the vehicle stops
+    write_calibration(live.calibration(), "calibration.toml", mount=live.mount)   # when the vehicle stops
 
 Frames: the estimator works on grey. The offline run hands it a video's decoded luma plane
 (:meth:`vision.video.FrameSource.grey_frames`); a BGR picture (OpenCV's ``VideoCapture``) is
@@ -85,6 +85,8 @@ class LiveFusion:
         source = str(config.path or "config")
         fusion_opts, self.settings = fusion_options_from_table(config.extra.get("fusion"), source)
         self.decoder = StreamDecoder(config.can, config.imu)
+        #: The IMU's mount (``[imu]``): what a calibration of its vehicle-frame biases belongs to.
+        self.mount = config.imu
         self.has_pitch_rate = "gyro_y_rad_s" not in self.decoder.unavailable
         self.vision = Estimator(config.camera, config.mount, config.road,
                                 options_from_table(config.extra.get("vision"), source))
@@ -250,8 +252,9 @@ class LiveFusion:
 
     def calibration(self) -> dict[str, list[float]]:
         """The IMU biases now, with 1-sigma, as the ``[fusion]`` keys of a calibration: save them
-        when the vehicle stops (``fusion.calibration.write_calibration``) and start the next
-        drive from them (``[fusion]`` of the config, or ``vifusion run --calibration``)."""
+        when the vehicle stops (``fusion.calibration.write_calibration(..., mount=live.mount)``)
+        and start the next drive from them (``[fusion]`` of the config, or ``vifusion run
+        --calibration``)."""
         with self._lock:
             ekf = self.stream.ekf
             return calibration_from_state(ekf.x, ekf.P,

@@ -45,6 +45,8 @@ class ReportInputs:
     camera_time_offset_s: float = 0.0
     #: What calibration.toml holds (None: from ``fused``'s last sample, when it has one).
     imu_calibration: dict | None = None
+    #: The calibration file the run started from (``--calibration``; a campaign's carried one).
+    calibration_from: str | None = None
 
 
 def _truth_covers_s(fused: pd.DataFrame, tr: pd.DataFrame, t0: float, angles, every: bool = False) -> float:
@@ -69,7 +71,7 @@ def summarise(r: ReportInputs) -> dict:
     """Numbers of the report: RMSE per source against truth, consistency, counts, timings."""
     out: dict = {"title": r.title, "smoothed": r.smoothed, "counts": r.counts, "timings_s": r.timings_s,
                  "time_offset": r.time_offset, "warnings": r.warnings,
-                 "camera_time_offset_s": r.camera_time_offset_s,
+                 "camera_time_offset_s": r.camera_time_offset_s, "calibration_from": r.calibration_from,
                  # present in every summary, null where there is none (no truth, too short a truth,
                  # biases that ended non-finite): a reader need not tell a missing key from a null
                  "imu_calibration": None, "rmse_deg": None, "consistency": None}
@@ -355,7 +357,9 @@ def _table_html(summary: dict) -> str:
     rows.append(f"<tr><td>IMU samples fused</td><td>{summary.get('samples', 0)}</td></tr>"
                 f"<tr><td>duration [s]</td><td>{summary.get('duration_s', 0.0):.2f}</td></tr>"
                 f"<tr><td>camera time offset applied [s] (added to frames.csv's times)</td>"
-                f"<td>{summary.get('camera_time_offset_s', 0.0):+.4f}</td></tr>")
+                f"<td>{summary.get('camera_time_offset_s', 0.0):+.4f}</td></tr>"
+                f"<tr><td>IMU biases started from</td><td>"
+                f"{html.escape(summary.get('calibration_from') or 'the config')}</td></tr>")
     acc = summary.get("rmse_deg") or {}
     if (acc.get("vision") or {}).get("valid_fraction") is not None:
         rows.append(f"<tr><td>vision valid</td><td>{100 * acc['vision']['valid_fraction']:.1f} % of frames</td></tr>")

@@ -159,6 +159,24 @@ def test_calibration_written_and_read_back(drive, tmp_path):
     one_line_error(vifusion("run", "--drive", drive, "--out", tmp_path / "c", "--calibration", bad),
                    "bad.toml", "accel_bias_m_s2")
     assert not (tmp_path / "c").exists() and not (tmp_path / "c.partial").exists()
+    # the file says whose biases they are, and the run what it started from (a review: a
+    # calibration of an FRD-mounted IMU was applied to an FLU one, 9 sigma off, without a word)
+    import json
+
+    from fusion.config import load_config
+
+    mount = load_config(drive / "config.toml").imu
+    assert values["imu_axes"] == list(mount.axes) == ["x", "-y", "-z"]
+    summary = json.loads((tmp_path / "b" / "report" / "summary.json").read_text())
+    assert summary["calibration_from"] == str(cal)
+    assert json.loads((tmp_path / "a" / "report" / "summary.json").read_text())["calibration_from"] is None
+    flu = tmp_path / "flu"
+    shutil.copytree(drive, flu)
+    text = (flu / "config.toml").read_text()
+    (flu / "config.toml").write_text(text.replace('axes = ["x", "-y", "-z"]', 'axes = ["x", "y", "z"]'))
+    one_line_error(vifusion("run", "--drive", flu, "--out", tmp_path / "d", "--calibration", cal),
+                   "calibration.toml", "axes = ['x', '-y', '-z']", "['x', 'y', 'z']")
+    assert not (tmp_path / "d").exists()
 
 
 def test_missing_file(drive, tmp_path):

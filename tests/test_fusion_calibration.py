@@ -75,13 +75,32 @@ def test_calibration_file_round_trip_and_bad_files(campaign, tmp_path):
     np.testing.assert_allclose(np.degrees(opts.noise.gyro_bias_prior_rad_s), cal["gyro_bias_deg_s"], rtol=1e-5)
     np.testing.assert_allclose(opts.noise.init_accel_bias_m_s2, cal["accel_bias_sigma_m_s2"], rtol=1e-5)
     for text, words in (("[fusion]\ngyro_bias_deg_s = [1, 2]\n", "needs 3 entries"),
-                        ("[fusion]\ngyro_bias_sigma_deg_s = [0.1, 0, 0.1]\n", "must be >="),
+                        ("[fusion]\ngyro_bias_sigma_deg_s = [0.1, -0.01, 0.1]\n", "must be >="),
+                        ("[fusion]\ngyro_bias_deg_s = [0, 0, 0]\n[imu]\naxes = ['x', 'y', 'y']\n", "signed permutation"),
+                        ("[fusion]\ngyro_bias_deg_s = [0, 0, 0]\n[imu]\nmount = 1\n", "not a known key"),
                         ("[fusion]\nsmooth = true\n", "not a known key"),
                         ("[vision]\nmethod = 'x'\n", "does not belong"),
                         ("[fusion]\n", "has none of")):
         path.write_text(text)
         with pytest.raises(ConfigError, match=words):
             read_calibration(path)
+
+
+def test_a_held_bias_round_trips(tmp_path):
+    """A bias held (sigma 0 in the config's ``[fusion]``, which allows it, and no walk; or the
+    y gyro bias of a run without a pitch gyro configured so) is written with sigma 0 and read
+    back: the reader refused what the run had written, and a campaign stopped on it (a review)."""
+    from imu import ImuMount
+
+    cal = {"gyro_bias_deg_s": [0.1, 0.0, -0.2], "gyro_bias_sigma_deg_s": [0.15, 0.0, 0.44],
+           "accel_bias_m_s2": [0.0, 0.01, 0.0], "accel_bias_sigma_m_s2": [0.02, 0.02, 0.02]}
+    path = tmp_path / "calibration.toml"
+    write_calibration(cal, path, "test", mount=ImuMount(("x", "-y", "-z"), (0.0, 0.0, 0.5)))
+    back = read_calibration(path)
+    assert back.pop("imu_axes") == ["x", "-y", "-z"]
+    assert back == cal
+    opts, _ = fusion_options_from_table(back)
+    assert opts.noise.init_gyro_bias_rad_s[1] == 0.0
 
 
 def _fused_with(cal):

@@ -109,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
             stop.set()
             cam.join(timeout=5)
     args.out.mkdir(parents=True, exist_ok=True)
-    write_calibration(live.calibration(), args.out / "calibration.toml", "tools/embed_example.py (LiveFusion)")
+    write_calibration(live.calibration(), args.out / "calibration.toml", "tools/embed_example.py (LiveFusion)",
+                      mount=live.mount)
     # what the process took at most: the embedding's footprint (Linux reports kB)
     print(f"peak resident memory of this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
     print(f"{live.samples} IMU samples, vision used {live.stream.counts['vision_used']} times "

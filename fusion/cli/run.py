@@ -99,7 +99,8 @@ def _run(args: argparse.Namespace) -> int:
     from vision.options import options_from_table
     from vision.video import default_workers, estimate_video, start_numba
 
-    from ..calibration import calibration_table, pitch_gyro_prior_deg_s, read_calibration, write_calibration
+    from ..calibration import (apply_calibration, calibration_table, pitch_gyro_prior_deg_s, read_calibration,
+                               write_calibration)
     from ..config import load_config
     from ..drive import (check_overlap, check_truth_overlap, frames_outside_warning, frames_warnings,
                          read_frame_times, read_truth, vision_warnings)
@@ -124,7 +125,7 @@ def _run(args: argparse.Namespace) -> int:
     fusion_table, fusion_source = cfg.extra.get("fusion") or {}, str(files.config)
     if args.calibration is not None:   # (a campaign reads it before it replaces anything)
         cal = getattr(args, "calibration_table", None) or read_calibration(args.calibration)
-        fusion_table = {**fusion_table, **cal}
+        fusion_table = apply_calibration(fusion_table, cal, cfg.imu, args.calibration)
         fusion_source += f" with {args.calibration}"
     fusion_opts, settings = fusion_options_from_table(fusion_table, fusion_source)
     smooth = args.smooth or settings.smooth
@@ -247,7 +248,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         calibration = calibration_table(fused.fused, None if has_pitch_rate else pitch_gyro_prior_deg_s(fusion_opts.noise))
         write_calibration(calibration, tmp / "calibration.toml",
-                          f"{files.can_log} ({'smoothed' if smooth else 'forward filter'})")
+                          f"{files.can_log} ({'smoothed' if smooth else 'forward filter'})", cfg.imu)
     except ValueError as e:   # a filter that ended without finite biases: nothing to carry on
         warnings.append(f"no calibration.toml written: {e}")
     timings["outputs"] += time.perf_counter() - t0
@@ -259,7 +260,9 @@ def _run(args: argparse.Namespace) -> int:
         imu_truth=imu_truth, cov=fused.cov, counts={**fused.counts, **_can_counts(summary.as_dict())},
         timings_s=timings, time_offset=time_offset, warnings=warnings, smoothed=smooth,
         title=f"vifusion run: {files.video.name}", camera_time_offset_s=offset_s,
-        imu_calibration=calibration), tmp / "report", plots=not args.no_report)
+        imu_calibration=calibration,
+        calibration_from=None if args.calibration is None else str(args.calibration)), tmp / "report",
+        plots=not args.no_report)
     timings["report"] = time.perf_counter() - t0
 
     if out.exists():
