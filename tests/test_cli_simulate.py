@@ -155,6 +155,45 @@ def test_bad_scenario_is_one_line_naming_the_key(tmp_path, edit, key):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("table, edit, key", [
+    # values a review found taken, then failing inside the simulator with a traceback, or giving
+    # a physically absurd drive with exit 0 (fifteenth session)
+    ("motion", "speed_profile = [[0, 72], [1, nan]]", "speed_profile"),
+    ("motion", "speed_profile = [[0, 72], [inf, 80]]", "speed_profile"),
+    ("motion", "speed_profile = [[0, 72], [1, -50]]", "speed_profile"),      # drove backwards
+    ("motion", "speed_profile = [[0, 72], [1, 5000]]", "speed_profile"),     # 1389 m/s
+    ("motion", "speed_profile = [[0, 72], [1, 80]]", "speed_kmh"),           # both: one was ignored
+    ("motion", "start_station_m = 1e12", "start_station_m"),                 # 29 TiB of road table
+    ("imu", "start_s = 5.0", "start_s"),                                     # no IMU sample at all
+    ("can", "start_epoch_s = 1.7e12", "start_epoch_s"),                      # milliseconds
+    ("render", "max_distance_m = 1e12", "max_distance_m"),
+    ("segment", "radius_m = 0.5", "radius_m"),                               # 2 1/m: lean 90 deg
+    ("manoeuvre", "shift_m = 1e6", "shift_m"),
+    ("manoeuvre", "repeat = 100000\nperiod_m = 10", "repeat"),              # did not finish
+])
+def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
+    """Checked when the scenario is read, each a one-line error naming its key."""
+    from drivesim.scenario import load_scenario
+
+    from fusion.errors import ConfigError
+
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    if table == "segment":
+        bad = src.replace("curvature_1_m = -0.005", edit, 1)
+    elif table == "manoeuvre":
+        bad = src + '\n[[motion.manoeuvre]]\nkind = "lane_change"\nstart_m = 10\nlength_m = 20\n' + edit + "\n"
+    elif f"[{table}]\n" in src:
+        bad = src.replace(f"[{table}]\n", f"[{table}]\n{edit}\n", 1)
+    else:
+        bad = src + f"\n[{table}]\n{edit}\n"
+    assert bad != src
+    p = tmp_path / "bad.toml"
+    p.write_text(bad)
+    with pytest.raises(ConfigError, match=key) as e:
+        load_scenario(p)
+    assert "\n" not in str(e.value)
+
+
 def test_missing_scenario_file(tmp_path):
     r = vifusion("simulate", tmp_path / "nope.toml", "--out", tmp_path / "out")
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "nope.toml" in r.stderr

@@ -105,6 +105,8 @@ def _segment(t: Table) -> Segment:
         r = t.get("radius_m", "float")
         if r == 0:
             raise t.error("radius_m", "must not be 0 (use curvature_1_m = 0 for a straight)")
+        if abs(r) < 5.0:   # curvature_1_m's limit, 0.2 1/m
+            raise t.error("radius_m", f"must be at least 5 m either way (a curvature of at most 0.2 1/m), got {r:g}")
         curvature = 1.0 / r
     else:
         curvature = t.get("curvature_1_m", "float", 0.0, min=-0.2, max=0.2)
@@ -120,9 +122,10 @@ def _manoeuvre(t: Table, lane_width_m: float) -> Manoeuvre:
         kind=kind,
         start_m=t.get("start_m", "float", min=0.0),
         length_m=t.get("length_m", "float", min=1.0),
-        shift_m=t.get("shift_m", "float", lane_width_m if kind != "weave" else 0.3),
+        shift_m=t.get("shift_m", "float", lane_width_m if kind != "weave" else 0.3,
+                      min=-3 * lane_width_m, max=3 * lane_width_m),
         hold_m=t.get("hold_m", "float", 30.0, min=0.0),
-        repeat=t.get("repeat", "int", 1, min=1),
+        repeat=t.get("repeat", "int", 1, min=1, max=1000),
         period_m=t.get("period_m", "float", 0.0, min=0.0),
     )
     if m.repeat > 1 and m.period_m <= 0:
@@ -192,13 +195,19 @@ def parse_scenario(data: dict, source: str) -> Scenario:
             profile = tuple((float(a), float(b)) for a, b in raw)
         except (TypeError, ValueError):
             raise mo.error("speed_profile", "must be a list of [t_s, speed_kmh] pairs") from None
+        if not all(math.isfinite(a) and 0.0 <= a <= 1e6 for a, _ in profile):
+            raise mo.error("speed_profile", "times must be finite, 0 to 1e6 s")
+        if not all(1.0 <= b <= 400.0 for _, b in profile):   # speed_kmh's range (NaN fails too)
+            raise mo.error("speed_profile", f"speeds must be 1 to 400 km/h, got {[b for _, b in profile]}")
         if any(b2 <= a2 for (a2, _), (b2, _) in zip(profile[:-1], profile[1:])):
             raise mo.error("speed_profile", "times must increase")
+        if mo.has("speed_kmh"):
+            raise mo.error("speed_kmh", "and speed_profile both given: the profile alone sets the speed")
     motion = Motion(
         vehicle=vehicle,
         speed_kmh=mo.get("speed_kmh", "float", 100.0, min=1.0, max=400.0),
         speed_profile=profile or (),
-        start_station_m=mo.get("start_station_m", "float", 20.0, min=0.0),
+        start_station_m=mo.get("start_station_m", "float", 20.0, min=0.0, max=1e5),
         lateral_offset_m=mo.get("lateral_offset_m", "float", -lane / 2, min=-3 * lane, max=3 * lane),
         manoeuvres=tuple(_manoeuvre(t, lane) for t in _list_of_tables(mo, "manoeuvre")),
         pitch_amplitude_deg=mo.get("pitch_amplitude_deg", "float", 0.3, min=0.0, max=10.0),
@@ -246,7 +255,9 @@ def parse_scenario(data: dict, source: str) -> Scenario:
     can = CanSpec(
         format=cn.get("format", "str", "asc", choices=LOG_FORMATS),
         extra_traffic=cn.get("extra_traffic", "bool", True),
-        start_epoch_s=cn.get("start_epoch_s", "float", 1.7e9, min=0.0),
+        # seconds since 1970 (1e10 is the year 2286; milliseconds, 1.7e12, are a mistake the log
+        # readers would refuse or the ASC writer's calendar fail on)
+        start_epoch_s=cn.get("start_epoch_s", "float", 1.7e9, min=0.0, max=1e10),
     )
     cn.done()
 
@@ -258,7 +269,7 @@ def parse_scenario(data: dict, source: str) -> Scenario:
         shot_noise_gain=rn.get("shot_noise_gain", "float", default.shot_noise_gain, min=0.0, max=10.0),
         texture_fine=rn.get("texture_fine", "float", default.texture_fine, min=0.0, max=0.5),
         texture_coarse=rn.get("texture_coarse", "float", default.texture_coarse, min=0.0, max=0.5),
-        max_distance_m=rn.get("max_distance_m", "float", default.max_distance_m, min=10.0),
+        max_distance_m=rn.get("max_distance_m", "float", default.max_distance_m, min=10.0, max=1000.0),
     )
     supersample = rn.get("supersample", "int", 4, min=4, max=16)
     rn.done()
@@ -269,6 +280,8 @@ def parse_scenario(data: dict, source: str) -> Scenario:
 
     if video.start_s >= duration:
         raise ConfigError(f"{source}: [video] start_s must be < [scenario] duration_s")
+    if imu.start_s >= duration:
+        raise ConfigError(f"{source}: [imu] start_s must be < [scenario] duration_s")
     return Scenario(name=name, duration_s=duration, seed=seed, camera=camera, mount=mount,
                     markings=markings, segments=segments, motion=motion, imu=imu, video=video,
                     can=can, look=look, supersample=supersample, truth_rate_hz=truth_rate,
