@@ -52,6 +52,10 @@ def find_drive_files(root: str | Path) -> DriveFiles:
     root = Path(root)
     if not root.is_dir():
         raise InputError(f"{root}: no such drive folder")
+    if root.name.endswith(".partial") and (root / "imu_truth.csv").is_file():
+        # a simulation killed before it renamed its folder: its frames stop where it was (a
+        # review ran one with 47 of 90 frames, a warning the only sign)
+        raise InputError(f"{root}: an unfinished simulation (still named .partial): simulate the drive again")
     videos = [p for p in (root / "video.mp4", root / "video.avi", root / "video") if p.exists()]
     kinds = (".asc", ".blf", ".log", ".trc", ".csv", ".mf4")
     logs = sorted(p for p in root.glob("can.*") if log_suffix(p)[0] in kinds)

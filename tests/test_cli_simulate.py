@@ -258,3 +258,65 @@ def test_force_does_not_replace_a_recorded_drive(tmp_path):
                  "--force")
     assert r.returncode == 2 and "is not a simulated drive" in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
     assert sorted(p.name for p in rec.iterdir()) == before
+
+
+def test_a_saturated_imu_signal_is_the_range_end_not_sna():
+    """The simulated IMU saturates at its DBC range as a sensor does: the top and bottom raw
+    values that are measurements, not the "SNA" value the DBC names at raw 65535 (cantools
+    rounds the range's maximum of AccX onto it: a review's 1e5 m/s^2 bias read as "accel_x
+    never seen"). Unsaturated values are encoded as before."""
+    import cantools
+
+    from drivesim.canlog import DBC_PATH, _encode
+
+    acc = cantools.database.load_file(DBC_PATH).get_message_by_name("IMU_ACC")
+    base = {"AccStatus": 0, "AccCounter": 0, "AccCRC": 0}
+    data = _encode(acc, {**base, "AccX": 1e5, "AccY": -1e5, "AccZ": 1.0})
+    raw = acc.decode(data, decode_choices=False, scaling=False)
+    assert raw["AccX"] == 65534 and raw["AccY"] == 0, raw
+    phys = acc.decode(data, decode_choices=False)
+    step = 0.0001274
+    assert 4.1723 - 1.5 * step < phys["AccX"] < 4.1723 and phys["AccY"] == pytest.approx(-4.1768, abs=step / 2)
+    plain = {**base, "AccX": 0.5, "AccY": -0.25, "AccZ": 1.0}
+    assert _encode(acc, plain) == bytes(acc.encode(plain, scaling=True, padding=False, strict=True))
+
+
+def test_sigterm_during_a_simulation_leaves_no_drive_and_a_partial_one_is_refused(tmp_path):
+    """``kill`` (SIGTERM) during the render: the command cleans up as on Ctrl-C, exit 143 with
+    one line, no ``OUT`` and no ``OUT.partial`` (it was killed on the spot and left a
+    ``.partial`` folder with 47 of 90 frames, which ``run --drive`` took with a warning: a
+    review). A ``.partial`` simulation left by a harder kill is refused by ``run``."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    long = tmp_path / "long.toml"
+    long.write_text(src.replace("duration_s = 2.0", "duration_s = 20.0", 1))
+    out = tmp_path / "drive"
+    p = subprocess.Popen([sys.executable, "-m", "fusion", "simulate", str(long), "--out", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGTERM, signal.SIG_DFL))
+    deadline = time.monotonic() + 120
+    while not (out.with_name("drive.partial") / "config.toml").is_file() and p.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 143 and err.strip() == "error: terminated (SIGTERM)", (p.returncode, err)
+    assert not out.exists() and not out.with_name("drive.partial").exists()
+
+    import shutil
+
+    mine = tmp_path / "mydata.partial"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("precious")
+    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "mydata", "--no-video")
+    assert r.returncode == 2 and "holds files a simulation did not write" in r.stderr, r.stderr
+    assert (mine / "notes.txt").read_text() == "precious" and not (tmp_path / "mydata").exists()
+
+    half = tmp_path / "half.partial"
+    shutil.copytree(TEST_SCENARIOS.parents[2] / "fusion" / "data" / "sample_drive", half)
+    r = vifusion("run", "--drive", half, "--out", tmp_path / "run")
+    assert r.returncode == 2 and r.stderr.strip().startswith("error: ") and "unfinished simulation" in r.stderr

@@ -581,6 +581,11 @@ def _init_worker(counter) -> None:
     forked after the parent used OpenCV's thread pool it deadlocks, seen in the tests.)"""
     global _COUNTER
     _COUNTER = counter
+    import signal
+
+    # a forked worker keeps the command's SIGTERM handler (fusion.cli): the pool's own
+    # termination of its workers must end them as before, not raise in them
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _tick_shared(n: int) -> None:

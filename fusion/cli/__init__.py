@@ -118,6 +118,9 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except KeyboardInterrupt:
+        if interrupted.terminated:   # SIGTERM (kill, a batch system): the same clean-up, its own status
+            print("error: terminated (SIGTERM)", file=sys.stderr)
+            return 143
         print("error: interrupted", file=sys.stderr)
         return 130
     except Exception as e:
@@ -162,20 +165,27 @@ class _InterruptWatch:
     in the main thread. With ``quiet``, once interrupted: a KeyboardInterrupt raised where
     Python cannot pass it on (numba's LLVM callbacks: "Exception ignored ...") is raised again
     in the main thread instead of printed and lost, and the other errors of finalizers that the
-    interrupt left half built are not printed (``--debug`` prints them)."""
+    interrupt left half built are not printed (``--debug`` prints them). SIGTERM, where it has
+    its default action (the process killed on the spot, a simulation's or a run's ``.partial``
+    folder left behind, which ``run --drive`` took: a review), is taken the same way and noted
+    in ``terminated``, so that the command's clean-up runs."""
 
     def __init__(self, quiet: bool = True):
-        self.seen = False
+        self.seen = self.terminated = False
         self._quiet = quiet
         self._before = signal.getsignal(signal.SIGINT)
         self._hook = sys.unraisablehook
         self._resent: list[threading.Thread] = []
         self._active = threading.current_thread() is threading.main_thread() and self._before is signal.default_int_handler
+        self._term = self._active and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
         if self._active:
             signal.signal(signal.SIGINT, self._on_interrupt)
+        if self._term:
+            signal.signal(signal.SIGTERM, self._on_interrupt)
 
     def _on_interrupt(self, signum, frame):
         self.seen = True
+        self.terminated = self.terminated or signum == signal.SIGTERM
         if self._quiet:
             sys.unraisablehook = self._unraisable
         raise KeyboardInterrupt
@@ -212,6 +222,8 @@ class _InterruptWatch:
                 time.sleep(0.001)        # Python code runs the no-op on the signal, if one is pending
             signal.signal(signal.SIGINT, self._before)
             sys.unraisablehook = self._hook
+        if self._term:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def workers_arg(text: str) -> int:

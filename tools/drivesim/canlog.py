@@ -184,15 +184,34 @@ def write_can_log(out_path, imu, speed, *, dbc_path=None, start_epoch_s=1.7e9, e
 
 
 def _encode(msg: Any, values: dict[str, float]) -> bytes:
-    clipped = {}
+    """The frame of ``values``, each saturated at its signal's DBC range as a sensor's output
+    saturates: at the last raw value that is a measurement. The simulator's DBC names the top
+    raw value of each IMU signal "SNA", and cantools rounds the range's maximum onto it, so a
+    saturated value read back as "no measurement" (a review: an accelerometer bias of 1e5 m/s^2
+    gave "accel_x never seen"); it is stepped back one resolution from such a value."""
+    from imu.dbc import invalid_choice
+
+    clipped, saturated = {}, []
     for sig in msg.signals:
         if sig.name not in values:
             continue
         v = values[sig.name]
         if sig.minimum is not None and sig.maximum is not None:
-            v = min(max(v, sig.minimum), sig.maximum)
+            w = min(max(v, sig.minimum), sig.maximum)
+            if w != v:
+                saturated.append(sig)
+            v = w
         clipped[sig.name] = v
-    return bytes(msg.encode(clipped, scaling=True, padding=False, strict=True))
+    data = bytes(msg.encode(clipped, scaling=True, padding=False, strict=True))
+    for _ in range(4):
+        raw = msg.decode(data, decode_choices=False, scaling=False) if saturated else {}
+        bad = [sig for sig in saturated if invalid_choice(str((sig.choices or {}).get(raw[sig.name], "")))]
+        if not bad:
+            return data
+        for sig in bad:   # one resolution back into the range
+            clipped[sig.name] -= math.copysign(abs(sig.scale), clipped[sig.name] - (sig.minimum + sig.maximum) / 2)
+        data = bytes(msg.encode(clipped, scaling=True, padding=False, strict=True))
+    return data
 
 
 def _imu_frames(db: Any, t: np.ndarray, v: np.ndarray, pitch: bool) -> list[tuple]:
