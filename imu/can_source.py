@@ -34,8 +34,8 @@ import can
 
 from .config import ACCEL, CHANNELS, GYRO, CanMapping, ImuMount
 from .dbc import DecodePlan, resolve
-from .errors import BusError
 from .decode import decode_frame
+from .errors import BusError
 from .samples import (
     VALUE_COLUMNS, ChannelStats, Gap, ImuSample, SourceStats, Summary, unavailable_channels,
     vehicle_channel_map,
