@@ -160,6 +160,7 @@ class StreamDecoder:
         self._msg = {fid: self.plan.sources[idx[0]] for fid, idx in self._by_id.items()}
         self._imu_sources = {i for i, s in enumerate(self.plan.sources)
                              if any(p.channel in _IMU for p in s.signals)}
+        self._imu_ids = frozenset(self.plan.sources[i].frame_id for i in self._imu_sources)
         self._clock = self.plan.clock
         self._vmap = vehicle_channel_map(mount)
         self._chan_lock: dict[int, Any] = {}
@@ -189,6 +190,9 @@ class StreamDecoder:
         self._prev_speed_idx = -1
         self.frames_read = 0
         self.frames_mapped = 0
+        #: Data frames of the IMU's own messages (gyro and accelerometer; not the wheel speed)
+        #: on the bus channel taken: what :class:`LiveSource`'s ``imu_timeout_s`` waits for.
+        self.imu_frames = 0
         self.unknown_ids: dict[str, int] = {}
         self.unmapped_frames = 0
         self.error_frames = 0
@@ -233,6 +237,8 @@ class StreamDecoder:
         if msg.is_remote_frame:
             counts["remote"] = counts.get("remote", 0) + 1
             return []
+        if aid in self._imu_ids:
+            self.imu_frames += 1
         t = msg.timestamp
         if not (math.isfinite(t) and abs(t) < 1e12):
             counts["bad_timestamp"] = counts.get("bad_timestamp", 0) + 1
@@ -582,11 +588,11 @@ class LiveSource:
     poll_s : float
         Longest wait in ``bus.recv``, s; bounds how late :meth:`stop` and quiet-bus samples are.
     imu_timeout_s : float, optional
-        Longest time without a frame of the IMU's messages (the DBC messages ``[can.signals]``
-        maps), s, counted from the start of the iteration; then the samples still open are
-        yielded and :class:`imu.BusError` is raised. ``None`` (the default) waits for ever: a
-        bus may be quiet before the vehicle starts. Other traffic does not count: a dead IMU on
-        a busy bus is still a dead IMU.
+        Longest time without a data frame of the IMU's messages (those ``[can.signals]`` maps a
+        gyro or accelerometer channel to), s, counted from the start of the iteration; then the
+        samples still open are yielded and :class:`imu.BusError` is raised. ``None`` (the
+        default) waits for ever: a bus may be quiet before the vehicle starts. Other traffic,
+        the wheel speed's included, does not count: a dead IMU on a busy bus is still a dead IMU.
 
     A ``bus.recv`` that fails (a bus closed from another thread, a driver error) ends the
     iteration the same way: the open samples first, then :class:`imu.BusError` naming the bus,
@@ -636,7 +642,7 @@ class LiveSource:
         clock = time.perf_counter
         wait_max = self.poll_s
         timeout = self.imu_timeout_s
-        heard_s, mapped = clock(), dec.frames_mapped
+        heard_s, heard = clock(), dec.imu_frames
         while not self._stop.is_set():
             now = clock()
             try:
@@ -650,8 +656,8 @@ class LiveSource:
             if dec.next_expiry_s() < math.inf:
                 yield from dec.expire(now)
             if timeout is not None:
-                if dec.frames_mapped != mapped:
-                    heard_s, mapped = now, dec.frames_mapped
+                if dec.imu_frames != heard:
+                    heard_s, heard = now, dec.imu_frames
                 elif now - heard_s > timeout:
                     yield from dec.flush()
                     raise BusError(f"{self._name()}: no frame of the IMU's messages for {now - heard_s:.2f} s "

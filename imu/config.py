@@ -120,6 +120,9 @@ class CanMapping:
             if ch not in CHANNELS:
                 raise ImuConfigError(f"[can.signals] {ch}: unknown channel, expected one of {', '.join(CHANNELS)}")
             body = ref[1:] if isinstance(ref, str) and ref.startswith("-") else ref
+            if body is not ref and ch == "speed":
+                raise ImuConfigError(f'[can.signals] speed = {ref!r}: a speed has no axis to count the other way '
+                                     "(its sign is the DBC's)")
             if not isinstance(body, str) or body.count(".") != 1 or body.startswith((".", "-")) or body.endswith("."):
                 raise ImuConfigError(f'[can.signals] {ch} must be "MESSAGE.SIGNAL" (or "-MESSAGE.SIGNAL" for a '
                                      f"signal counted the other way), got {ref!r}")

@@ -387,6 +387,8 @@ def test_a_signal_mapped_with_a_minus_is_decoded_negated(tmp_path, clean):
     for bad in ("--IMU_RATE.RateZ", "-.RateZ", "-IMU_RATE.", "-"):
         with pytest.raises(ImuConfigError, match=r'must be "MESSAGE.SIGNAL" \(or "-MESSAGE.SIGNAL"'):
             dataclasses.replace(sim_mapping(), signals=dict(signals, gyro_z=bad))
+    with pytest.raises(ImuConfigError, match="a speed has no axis"):
+        dataclasses.replace(sim_mapping(), signals=dict(signals, speed="-" + signals["speed"]))
     twice = dataclasses.replace(sim_mapping(), signals=dict(signals, gyro_y="-" + signals["gyro_z"]))
     with pytest.raises(ImuConfigError, match="both map IMU_RATE.RateZ"):
         read_log(path, twice, MOUNT_FRD)

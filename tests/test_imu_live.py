@@ -221,9 +221,10 @@ def test_a_bus_closed_mid_stream_yields_its_open_sample_then_one_error(tmp_path)
 
 
 def test_imu_timeout_ends_the_stream_when_the_imu_falls_silent_on_a_busy_bus(tmp_path):
-    """``imu_timeout_s``: the IMU's frames stop while another ID goes on every 10 ms (a dead IMU
-    on a live bus). The samples are all yielded, then BusError, no sooner than the timeout
-    after the last IMU frame and well before the sender stops (5 s)."""
+    """``imu_timeout_s``: the IMU's frames stop while the wheel speed (a mapped message, not
+    the IMU's) and another ID go on every 10 ms (a dead IMU on a live bus; the speed frames
+    kept it waiting for ever at first, a review). The samples are all yielded, then BusError,
+    no sooner than the timeout after the last IMU frame and well before the sender stops (5 s)."""
     from imu import BusError
 
     msgs = _cut_log(tmp_path, seed=6, keep_rate=20)
@@ -237,22 +238,28 @@ def test_imu_timeout_ends_the_stream_when_the_imu_falls_silent_on_a_busy_bus(tmp
             for m in msgs:
                 tx.send(can.Message(arbitration_id=m.arbitration_id, is_extended_id=m.is_extended_id, data=m.data))
             sent_s.append(time.perf_counter())
+            speed = next(m for m in reversed(msgs) if m.arbitration_id == 0x122)
             while not done.wait(0.01):
                 tx.send(can.Message(arbitration_id=0x7E0, is_extended_id=False, data=b"\x01"))
+                tx.send(can.Message(arbitration_id=0x122, is_extended_id=False, data=speed.data))
 
         sent_s = []
         sender = threading.Thread(target=send, daemon=True)
         sender.start()
+        watchdog = threading.Timer(5.0, source.stop)    # ends the iteration if no BusError comes
+        watchdog.start()
         try:
             with pytest.raises(BusError, match=r"no frame of the IMU's messages for .* s \(imu_timeout_s = 0.3"):
                 for sample in source:
                     samples.append(sample)
             ended_s = time.perf_counter()
         finally:
+            watchdog.cancel()
             done.set()
             sender.join(timeout=5)
     assert len(samples) == len(table), "every sample of the frames sent, the open one too"
     assert 0.3 <= ended_s - sent_s[0] < 5.0
     assert source.summary().unknown_ids.get("0x7E0", 0) > 10, "the other traffic went on meanwhile"
+    assert source.decoder.frames_mapped - source.decoder.imu_frames > len(table) // 2 + 10, "so did the speed"
     with pytest.raises(ValueError, match="imu_timeout_s"):
         LiveSource(rx, sim_mapping(), MOUNT_FRD, imu_timeout_s=0)
