@@ -136,11 +136,12 @@ def read_calibration(path: str | Path) -> dict:
         m = Table(data["imu"], "imu", str(path))
         axes, position = m.get("axes", "strs", None, length=3), m.get("position_m", "floats", None, length=3)
         m.done()
+        try:   # checked as the config's [imu] is, with or without the axes
+            mount = ImuMount(tuple(axes or ("x", "y", "z")), tuple(position or (0.0, 0.0, 0.0)))
+        except ImuConfigError as e:
+            raise ConfigError(f"{path}: {e}") from None
         if axes is not None:
-            try:
-                out[MOUNT_KEY] = list(ImuMount(tuple(axes), tuple(position or (0.0, 0.0, 0.0))).axes)
-            except ImuConfigError as e:
-                raise ConfigError(f"{path}: {e}") from None
+            out[MOUNT_KEY] = list(mount.axes)
     return out
 
 

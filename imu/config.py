@@ -50,7 +50,8 @@ class ImuMount:
             raise ImuConfigError(
                 f'[imu] axes must be a signed permutation of "x", "y", "z", got {[str(a) for a in self.axes]}'
             )
-        object.__setattr__(self, "axes", axes)
+        # one spelling of each axis ("+x" is "x"): a calibration compares them (a review)
+        object.__setattr__(self, "axes", tuple(a[1:] if a.startswith("+") else a for a in axes))
         if abs(np.linalg.det(self.R_v_from_imu) - 1.0) > 1e-9:
             raise ImuConfigError(f"[imu] axes {list(axes)} is a reflection, not a rotation")
         p = tuple(float(x) for x in self.position_m)

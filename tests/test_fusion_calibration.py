@@ -78,6 +78,7 @@ def test_calibration_file_round_trip_and_bad_files(campaign, tmp_path):
                         ("[fusion]\ngyro_bias_sigma_deg_s = [0.1, -0.01, 0.1]\n", "must be >="),
                         ("[fusion]\ngyro_bias_deg_s = [0, 0, 0]\n[imu]\naxes = ['x', 'y', 'y']\n", "signed permutation"),
                         ("[fusion]\ngyro_bias_deg_s = [0, 0, 0]\n[imu]\nmount = 1\n", "not a known key"),
+                        ("[fusion]\ngyro_bias_deg_s = [0, 0, 0]\n[imu]\nposition_m = [1e9, 0, 0]\n", "metres expected"),
                         ("[fusion]\nsmooth = true\n", "not a known key"),
                         ("[vision]\nmethod = 'x'\n", "does not belong"),
                         ("[fusion]\n", "has none of")):
@@ -98,6 +99,12 @@ def test_a_held_bias_round_trips(tmp_path):
     write_calibration(cal, path, "test", mount=ImuMount(("x", "-y", "-z"), (0.0, 0.0, 0.5)))
     back = read_calibration(path)
     assert back.pop("imu_axes") == ["x", "-y", "-z"]
+    # one spelling of an axis: "+x" is "x" (a drive's "+x" was refused against its own mount)
+    from fusion.calibration import apply_calibration
+
+    same = ImuMount(("+x", "-y", "-z"), (0.0, 0.0, 0.5))
+    assert same.axes == ("x", "-y", "-z")
+    assert apply_calibration({}, {**back, "imu_axes": ["x", "-y", "-z"]}, same, path) == back
     assert back == cal
     opts, _ = fusion_options_from_table(back)
     assert opts.noise.init_gyro_bias_rad_s[1] == 0.0
