@@ -1154,3 +1154,49 @@ def _interrupts_in_the_command(monkeypatch, capsys, tmp_path, _sigint_to_the_mai
     monkeypatch.setattr(run_cmd, "run", a_bug)
     with pytest.raises(RuntimeError, match="a bug"):
         main(["run"])
+
+
+def test_sigterm_ends_the_run_and_its_vision_workers_at_once(tmp_path):
+    """SIGTERM to the run's process alone (``kill PID``; SIGINT ignored, as for a command put
+    in the background of a script), while its two vision workers estimate: exit 143 with one
+    line within 2 s, the workers gone, no ``OUT`` and no ``OUT.partial``. A review found the
+    command killed outright when SIGINT was ignored (the workers orphaned, ``OUT.partial``
+    left), and otherwise waiting 18 s for the rest of the video's pieces."""
+    import signal
+    import subprocess
+    import time
+
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "fusion", "run", "--out", str(out), "--workers", "2", "--quiet"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: (signal.signal(signal.SIGINT, signal.SIG_IGN),
+                                             signal.signal(signal.SIGTERM, signal.SIG_DFL)))
+
+    def children():
+        try:
+            return [int(x) for x in Path(f"/proc/{p.pid}/task/{p.pid}/children").read_text().split()]
+        except OSError:
+            return []
+
+    deadline = time.monotonic() + 120
+    while len(children()) < 2 and p.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    workers = children()
+    time.sleep(0.5)                         # into the pieces
+    sent = time.monotonic()
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=60)
+    took = time.monotonic() - sent
+    assert p.returncode == 143 and err.strip().splitlines()[-1] == "error: terminated (SIGTERM)", (p.returncode, err)
+    assert "Traceback" not in err and took < 2.0, took
+    time.sleep(0.5)
+
+    def running(pid):
+        try:
+            return "\nState:\tZ" not in Path(f"/proc/{pid}/status").read_text()
+        except OSError:
+            return False
+
+    assert len(workers) >= 2 and not any(running(w) for w in workers), workers
+    assert not out.exists() and not out.with_name("out.partial").exists()

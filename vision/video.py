@@ -7,6 +7,7 @@ that names the file.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import os
@@ -633,8 +634,9 @@ def _estimate_parallel(jobs: list[_PieceJob], n_wanted: int, workers: int, tick,
         start_numba()
     counter = ctx.Value("q", 0)
     shown = 0
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx, initializer=_init_worker,
-                             initargs=(counter,)) as pool:
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx, initializer=_init_worker,
+                               initargs=(counter,))
+    try:
         futures = [pool.submit(_piece_job, j) for j in jobs]
         if while_waiting is not None:   # the workers are forked by now: this process is free
             while_waiting()
@@ -645,6 +647,16 @@ def _estimate_parallel(jobs: list[_PieceJob], n_wanted: int, workers: int, tick,
             tick(done_frames - shown)
             shown = done_frames
         results = [f.result() for f in futures]
+    except BaseException:
+        # an interrupt or an error: the workers are ended and the pieces not begun dropped, not
+        # waited for (a SIGTERM to this process alone waited 18 s for the rest of the video,
+        # and a kill after it left the workers running, a review); Ctrl-C reaches them anyway
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            with contextlib.suppress(Exception):
+                proc.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
     tick(n_wanted - shown)
     rows = [r for piece_rows, _ in results for r in piece_rows]
     # a piece past the end of the video reads nothing; the last frame read is the video's

@@ -127,6 +127,9 @@ def main(argv: list[str] | None = None) -> int:
         if interrupted.seen and not args.debug:
             # Ctrl-C that surfaced as another error: numba's compiler turns it into "no compiled
             # object yet", a pool worker's into SystemError (2 of 21 interrupts in a review)
+            if interrupted.terminated:
+                print("error: terminated (SIGTERM)", file=sys.stderr)
+                return 143
             print("error: interrupted", file=sys.stderr)
             return 130
         if not isinstance(e, USER_ERRORS) or args.debug:
@@ -172,12 +175,16 @@ class _InterruptWatch:
 
     def __init__(self, quiet: bool = True):
         self.seen = self.terminated = False
+        self._signum = signal.SIGINT
         self._quiet = quiet
         self._before = signal.getsignal(signal.SIGINT)
         self._hook = sys.unraisablehook
         self._resent: list[threading.Thread] = []
         self._active = threading.current_thread() is threading.main_thread() and self._before is signal.default_int_handler
-        self._term = self._active and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+        # SIGTERM on its own: a command started in the background of a script has SIGINT
+        # ignored and SIGTERM still default (a review found it killed outright then)
+        self._term = (threading.current_thread() is threading.main_thread()
+                      and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL)
         if self._active:
             signal.signal(signal.SIGINT, self._on_interrupt)
         if self._term:
@@ -186,6 +193,7 @@ class _InterruptWatch:
     def _on_interrupt(self, signum, frame):
         self.seen = True
         self.terminated = self.terminated or signum == signal.SIGTERM
+        self._signum = signum
         if self._quiet:
             sys.unraisablehook = self._unraisable
         raise KeyboardInterrupt
@@ -197,7 +205,7 @@ class _InterruptWatch:
             # hook has returned (raised in the hook it would be lost again), as a real signal to
             # the main thread (which wakes it from a sleep, as _thread.interrupt_main would not)
             returned = threading.Event()
-            thread = threading.Thread(target=self._interrupt_after, args=(returned,), daemon=True)
+            thread = threading.Thread(target=self._interrupt_after, args=(returned, self._signum), daemon=True)
             try:
                 thread.start()
                 self._resent.append(thread)
@@ -208,22 +216,24 @@ class _InterruptWatch:
         # object has no attribute '_as_parameter_'"); --debug shows them
 
     @staticmethod
-    def _interrupt_after(returned: threading.Event) -> None:
+    def _interrupt_after(returned: threading.Event, signum: int) -> None:
         returned.wait(1.0)
         time.sleep(0.01)                 # the hook's last steps
-        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+        signal.pthread_kill(threading.main_thread().ident, signum)
 
     def close(self) -> None:
+        mine = [sig for sig, on in ((signal.SIGINT, self._active), (signal.SIGTERM, self._term)) if on]
+        if self._resent:                 # an interrupt sent again after the command ended: not raised
+            for sig in mine:
+                signal.signal(sig, lambda signum, frame: None)
+            for thread in self._resent:
+                thread.join(2.0)
+            time.sleep(0.001)            # Python code runs the no-op on the signal, if one is pending
         if self._active:
-            if self._resent:             # an interrupt sent again after the command ended: not raised
-                signal.signal(signal.SIGINT, lambda signum, frame: None)
-                for thread in self._resent:
-                    thread.join(2.0)
-                time.sleep(0.001)        # Python code runs the no-op on the signal, if one is pending
             signal.signal(signal.SIGINT, self._before)
-            sys.unraisablehook = self._hook
         if self._term:
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        sys.unraisablehook = self._hook
 
 
 def workers_arg(text: str) -> int:

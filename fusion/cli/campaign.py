@@ -182,6 +182,10 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
         print(f"warning: {drive} skipped: {reason}", file=sys.stderr)
         rows.append({**row, "status": f"skipped: {reason}"})
         return calibration
+    except Exception:
+        if interrupt_seen():   # ... or as another error (numba's SystemError): the table says so too
+            raise KeyboardInterrupt from None
+        raise
     try:
         fused = pd.read_csv(out / "fused.csv")
         row.update(status="ok", **_drive_row(fused, out))
