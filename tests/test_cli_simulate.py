@@ -170,6 +170,7 @@ def test_bad_scenario_is_one_line_naming_the_key(tmp_path, edit, key):
     ("segment", "radius_m = 0.5", "radius_m"),                               # 2 1/m: lean 90 deg
     ("manoeuvre", "shift_m = 1e6", "shift_m"),
     ("manoeuvre", "repeat = 100000\nperiod_m = 10", "repeat"),              # did not finish
+    ("manoeuvre", "shift_m = 10.5\nrepeat = 12\nperiod_m = 21", "manoeuvre"), # 92.7 m, adding up
 ])
 def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
     """Checked when the scenario is read, each a one-line error naming its key."""
@@ -277,6 +278,9 @@ def test_a_saturated_imu_signal_is_the_range_end_not_sna():
     phys = acc.decode(data, decode_choices=False)
     step = 0.0001274
     assert 4.1723 - 1.5 * step < phys["AccX"] < 4.1723 and phys["AccY"] == pytest.approx(-4.1768, abs=step / 2)
+    at_max = acc.decode(_encode(acc, {**base, "AccX": 4.1723, "AccY": -4.1768, "AccZ": 1.0}),
+                        decode_choices=False, scaling=False)
+    assert at_max["AccX"] == 65534, "a value exactly at the range's maximum is saturated too"
     plain = {**base, "AccX": 0.5, "AccY": -0.25, "AccZ": 1.0}
     assert _encode(acc, plain) == bytes(acc.encode(plain, scaling=True, padding=False, strict=True))
 
@@ -310,12 +314,13 @@ def test_sigterm_during_a_simulation_leaves_no_drive_and_a_partial_one_is_refuse
 
     import shutil
 
-    mine = tmp_path / "mydata.partial"
-    mine.mkdir()
-    (mine / "notes.txt").write_text("precious")
-    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "mydata", "--no-video")
-    assert r.returncode == 2 and "holds files a simulation did not write" in r.stderr, r.stderr
-    assert (mine / "notes.txt").read_text() == "precious" and not (tmp_path / "mydata").exists()
+    for name in ("notes.txt", "config.toml"):     # a user's file; one a simulation also writes
+        mine = tmp_path / f"my{name[:5]}.partial"
+        mine.mkdir()
+        (mine / name).write_text("precious")
+        r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", mine.with_suffix(""), "--no-video")
+        assert r.returncode == 2 and "is not an unfinished simulation's folder" in r.stderr, r.stderr
+        assert (mine / name).read_text() == "precious" and not mine.with_suffix("").exists()
 
     half = tmp_path / "half.partial"
     shutil.copytree(TEST_SCENARIOS.parents[2] / "fusion" / "data" / "sample_drive", half)

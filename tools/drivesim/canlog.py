@@ -197,10 +197,10 @@ def _encode(msg: Any, values: dict[str, float]) -> bytes:
             continue
         v = values[sig.name]
         if sig.minimum is not None and sig.maximum is not None:
-            w = min(max(v, sig.minimum), sig.maximum)
-            if w != v:
-                saturated.append(sig)
-            v = w
+            if not sig.minimum < v < sig.maximum:   # at the range's end or beyond (NaN: as before)
+                if v == v:
+                    saturated.append(sig)
+            v = min(max(v, sig.minimum), sig.maximum)
         clipped[sig.name] = v
     data = bytes(msg.encode(clipped, scaling=True, padding=False, strict=True))
     for _ in range(4):

@@ -206,10 +206,12 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
             raise InputError(f"{out_dir} is not a simulated drive (no {' or '.join(_SIMULATED_ONLY)}): --force "
                              "replaces only a simulated drive")
     tmp = out_dir.with_name(out_dir.name + ".partial")
-    if tmp.is_file() or (tmp.is_dir() and any(not _simulator_wrote(p.name) for p in tmp.iterdir())):
-        # an unfinished simulation's folder is replaced; a user's of that name is not (a review:
-        # 'mydata.partial/notes.txt' was deleted without a word)
-        raise InputError(f"{tmp} exists and holds files a simulation did not write: move it, or give "
+    if tmp.is_file() or (tmp.is_dir() and any(tmp.iterdir()) and (
+            any(not _simulator_wrote(p.name) for p in tmp.iterdir()) or not (tmp / "imu_truth.csv").is_file())):
+        # an unfinished simulation's folder is replaced (empty, or with the IMU truth only a
+        # simulation writes); a user's of that name is not (a review: 'mydata.partial/notes.txt',
+        # and a folder holding only a config.toml, were deleted without a word)
+        raise InputError(f"{tmp} exists and is not an unfinished simulation's folder: move it, or give "
                          "another --out")
     if tmp.exists():
         shutil.rmtree(tmp)

@@ -12,6 +12,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from imu.config import ImuMount
 from imu.errors import ImuError
 
@@ -217,6 +219,15 @@ def parse_scenario(data: dict, source: str) -> Scenario:
         car_roll_gain_deg=mo.get("car_roll_gain_deg", "float", 0.5, min=0.0, max=5.0),
     )
     mo.done()
+    if motion.manoeuvres:
+        # the manoeuvres add up (a lane change repeated shifts again each time): the offset they
+        # reach is held to the same three lanes as lateral_offset_m (a review: 92.7 m)
+        ends = [m.start_m + max(m.repeat - 1, 0) * m.period_m + 2 * m.length_m + m.hold_m for m in motion.manoeuvres]
+        s_grid = np.linspace(min(m.start_m for m in motion.manoeuvres), max(ends), 20001)
+        reach = float(np.max(np.abs(motion.lateral_offset_m + sum(m.offset(s_grid) for m in motion.manoeuvres))))
+        if reach > 3 * lane + 1e-9:
+            raise mo.error("manoeuvre", f"the manoeuvres take the vehicle {reach:.1f} m off the centre line, "
+                                        f"more than three lanes ({3 * lane:g} m)")
 
     im = table("imu")
     imu = ImuSpec(
