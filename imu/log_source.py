@@ -36,7 +36,7 @@ import warnings
 from collections import Counter, deque
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from itertools import islice
+from itertools import chain, islice
 from operator import attrgetter
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
@@ -468,8 +468,8 @@ def _without_zeroed_records(reader: Iterable[can.Message], state: ReadState) -> 
     dropped and counted as a problem (one alone is let through: ID 0 is a valid CAN ID)."""
     held: list[can.Message] = []
     dropped, after, last_t = 0, None, None
-    for msg in reader:
-        if _zero_record(msg) and (not held or msg.timestamp == held[0].timestamp):
+    for msg in chain(reader, [None]):     # None: the end, where the held records are judged too
+        if msg is not None and _zero_record(msg) and (not held or msg.timestamp == held[0].timestamp):
             held.append(msg)
             continue
         if len(held) > 1:
@@ -477,15 +477,10 @@ def _without_zeroed_records(reader: Iterable[can.Message], state: ReadState) -> 
             after = last_t if after is None else after
         else:
             yield from held
-        held = [msg] if _zero_record(msg) else []
-        if not held:
+        held = [msg] if msg is not None and _zero_record(msg) else []
+        if msg is not None and not held:
             last_t = msg.timestamp
             yield msg
-    if len(held) > 1:
-        dropped += len(held)
-        after = last_t if after is None else after
-    else:
-        yield from held
     if dropped:
         state.bad_lines += dropped
         where = "at its start" if after is None else f"the first after the frame at {after:.3f} s"
