@@ -118,20 +118,12 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except KeyboardInterrupt:
-        if interrupted.terminated:   # SIGTERM (kill, a batch system): the same clean-up, its own status
-            print("error: terminated (SIGTERM)", file=sys.stderr)
-            return 143
-        print("error: interrupted", file=sys.stderr)
-        return 130
+        return interrupted.said()
     except Exception as e:
         if interrupted.seen and not args.debug:
             # Ctrl-C that surfaced as another error: numba's compiler turns it into "no compiled
             # object yet", a pool worker's into SystemError (2 of 21 interrupts in a review)
-            if interrupted.terminated:
-                print("error: terminated (SIGTERM)", file=sys.stderr)
-                return 143
-            print("error: interrupted", file=sys.stderr)
-            return 130
+            return interrupted.said()
         if not isinstance(e, USER_ERRORS) or args.debug:
             raise
         print(f"error: {_one_line(e)}", file=sys.stderr)
@@ -189,6 +181,14 @@ class _InterruptWatch:
             signal.signal(signal.SIGINT, self._on_interrupt)
         if self._term:
             signal.signal(signal.SIGTERM, self._on_interrupt)
+
+    def said(self) -> int:
+        """The command's end after an interrupt: its one line, and the exit status."""
+        if self.terminated:   # SIGTERM (kill, a batch system): the same clean-up, its own status
+            print("error: terminated (SIGTERM)", file=sys.stderr)
+            return 143
+        print("error: interrupted", file=sys.stderr)
+        return 130
 
     def _on_interrupt(self, signum, frame):
         self.seen = True

@@ -175,17 +175,15 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
         log = io.StringIO()
         with contextlib.redirect_stdout(log):
             run_cmd.run(run_args)
-    except USER_ERRORS as e:
-        if interrupt_seen():   # Ctrl-C that surfaced as an error: the campaign ends, no drive skipped
-            raise KeyboardInterrupt from None
+    except Exception as e:
+        if interrupt_seen():   # Ctrl-C or SIGTERM that surfaced as an error (numba's SystemError
+            raise KeyboardInterrupt from None   # too): the campaign ends, no drive skipped
+        if not isinstance(e, USER_ERRORS):
+            raise
         reason = _one_line(e)
         print(f"warning: {drive} skipped: {reason}", file=sys.stderr)
         rows.append({**row, "status": f"skipped: {reason}"})
         return calibration
-    except Exception:
-        if interrupt_seen():   # ... or as another error (numba's SystemError): the table says so too
-            raise KeyboardInterrupt from None
-        raise
     try:
         fused = pd.read_csv(out / "fused.csv")
         row.update(status="ok", **_drive_row(fused, out))
