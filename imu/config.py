@@ -71,6 +71,12 @@ class ImuMount:
         return R
 
 
+def split_signal(ref: str) -> tuple[str, bool]:
+    """``[can.signals]``'s ``"MESSAGE.SIGNAL"`` or ``"-MESSAGE.SIGNAL"`` (a signal counted the
+    other way than its IMU axis): the reference without the sign, and whether it had one."""
+    return (ref[1:], True) if ref.startswith("-") else (ref, False)
+
+
 @dataclass(frozen=True)
 class CanMapping:
     """Where each IMU channel lives on the bus.
@@ -120,8 +126,8 @@ class CanMapping:
         for ch, ref in self.signals.items():
             if ch not in CHANNELS:
                 raise ImuConfigError(f"[can.signals] {ch}: unknown channel, expected one of {', '.join(CHANNELS)}")
-            body = ref[1:] if isinstance(ref, str) and ref.startswith("-") else ref
-            if body is not ref and ch == "speed":
+            body, negated = split_signal(ref) if isinstance(ref, str) else (ref, False)
+            if negated and ch == "speed":
                 raise ImuConfigError(f'[can.signals] speed = {ref!r}: a speed has no axis to count the other way '
                                      "(its sign is the DBC's)")
             if not isinstance(body, str) or body.count(".") != 1 or body.startswith((".", "-")) or body.endswith("."):

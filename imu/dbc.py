@@ -22,7 +22,7 @@ from typing import Any
 
 import cantools
 
-from .config import ACCEL, CHANNELS, GYRO, CanMapping
+from .config import ACCEL, CHANNELS, GYRO, CanMapping, split_signal
 from .errors import DecodeError, ImuConfigError
 from .units import si_factor
 
@@ -208,8 +208,7 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
         if channel not in mapping.signals:
             continue
         ref = mapping.signals[channel]
-        negated = ref.startswith("-")   # the signal counts the other way than the IMU axis
-        bare = ref[1:] if negated else ref
+        bare, negated = split_signal(ref)   # negated: the signal counts the other way than the IMU axis
         msg_name, sig_name = bare.split(".")
         if bare in seen:
             raise ImuConfigError(f"[can.signals] {channel} and {seen[bare]} both map {bare}")

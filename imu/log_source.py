@@ -47,7 +47,7 @@ import pandas as pd
 from can.io.generic import TextIOMessageReader
 from can.util import dlc2len, len2dlc
 
-from .config import CHANNELS, CanMapping, ImuMount
+from .config import CHANNELS, CanMapping, ImuMount, split_signal
 from .dbc import DecodePlan, resolve
 from .decode import decode_source
 from .errors import DecodeError, ImuConfigError
@@ -879,8 +879,8 @@ def table_attrs(plan: DecodePlan, mount: ImuMount, summary: Summary) -> dict[str
     for vch, ich, sign in vehicle_channel_map(mount):
         if ich in plans:
             p = plans[ich][1]
-            negated = (sign < 0) != p.ref.startswith("-")
-            by_col[col_of[vch]] = f"{'-' if negated else ''}{p.ref.lstrip('-')} [{p.unit}]"
+            bare, negated = split_signal(p.ref)
+            by_col[col_of[vch]] = f"{'-' if (sign < 0) != negated else ''}{bare} [{p.unit}]"
         else:
             by_col[col_of[vch]] = None
     return {
