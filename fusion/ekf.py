@@ -277,8 +277,8 @@ class NoiseModel:
     #: included (``tools/fusion_realdata.py``, :func:`fusion.metrics.gyro_attitude_drift`); KITTI's
     #: 10 Hz OXTS rates drift 0.090 in pitch over 1 s, over this default, but ten integration steps
     #: through the braking's pitch say more about the coarse sampling than about the gyro. The
-    #: simulator's gyros leave out up to 0.015 in pitch (two integration steps where the simulated
-    #: roll rate steps), and its drives' configs say 0.02 (``drivesim.drive.SIM_ATTITUDE_WALK_DEG_SQRT_S``).
+    #: simulator's gyros leave out up to 0.009 in pitch, their noise included, and its drives'
+    #: configs say 0.01 (``drivesim.drive.SIM_ATTITUDE_WALK_DEG_SQRT_S``).
     #: Without a pitch gyro the pitch walks with ``no_pitch_rate_walk_rad_sqrt_s`` instead.
     attitude_walk_rad_sqrt_s: float = math.radians(0.05)
     #: Without a lane fit the road is assumed to turn with the vehicle; how far the vehicle may

@@ -165,6 +165,43 @@ def test_steady_turn_lean_and_specific_force():
     assert f[2] == pytest.approx(math.hypot(GRAVITY_M_S2, v_h**2 * k), rel=1e-3)
 
 
+def test_curvature_is_smooth_across_clothoid_joints():
+    """The road's curvature is the derivative of its heading, and its slope has no corner where
+    transitions meet arcs and straights (:func:`drivesim.road.ease`): a plain clothoid's has one,
+    which the vehicle turns into a step of its roll rate."""
+    s = np.linspace(100.0, 400.0, 300001)   # the clothoid joints at 120, 180, 300 and 380 m
+    h = s[1] - s[0]
+    k = ROAD.curvature_1_m(s)
+    np.testing.assert_allclose(np.gradient(ROAD.heading_rad(s), h)[1:-1], k[1:-1], atol=1e-9)
+    slope = np.gradient(k, h)
+    # per 1 mm: a corner of the plain clothoid (1/250 over 60 m) jumps by 6.7e-5 1/m^2
+    assert np.abs(np.diff(slope)).max() < 1e-7
+    assert ROAD.curvature_1_m(np.array([150.0]))[0] == pytest.approx(1 / 500, rel=1e-9)  # mid-transition
+
+
+def test_vehicle_accelerations_are_finite_at_clothoid_joints():
+    """Sampled every 10 ms through the road's clothoid joints and bank runoffs at 90 km/h, 1.75 m
+    off the centre line, the specific force 0.5 m above the contact point (where an IMU sits)
+    moves by under 0.5 m/s^2 and the body rates by under 1.5 deg/s from one sample to the next,
+    for the motorcycle and the car: a rider builds the lean rate up, and no body's roll or pitch
+    rate steps. With plain clothoids the motorcycle's lateral specific force jumped 12.2 m/s^2
+    in one sample (the roll rate stepping at the joint, the lever arm turning it into a velocity
+    impulse) and the pitch rate 6.4 deg/s (the longitudinal acceleration off the centre line
+    stepping); now 0.14 m/s^2 and 0.23 deg/s, and the largest change is the roll rate's 0.9
+    deg/s (92 deg/s^2 of roll acceleration entering the 250 m curve). (A manoeuvre's septic
+    smoothstep is C3: its roll acceleration starts with a finite step, as a rider's push on the
+    bar does, 280 deg/s^2 for this file's 70 m double lane change.)"""
+    t = np.arange(0.0, 30.0, 0.01)
+    for vehicle in ("motorcycle", "car"):
+        traj = motorcycle(vehicle=vehicle, manoeuvres=())
+        f = traj.specific_force_m_s2(t, [0.0, 0.0, 0.5])
+        w = np.degrees(traj.body_rate_rad_s(t))
+        assert np.abs(np.diff(f, axis=0)).max() < 0.5, vehicle
+        assert np.abs(np.diff(w, axis=0)).max() < 1.5, vehicle
+        if vehicle == "motorcycle":
+            assert np.abs(w[:, 0]).max() > 5.0   # and it did lean into the curves (9.5 deg/s)
+
+
 def test_renderer_taylor_surface_matches_exact_surface():
     """The renderer's node Taylor series and the truth's exact surface agree to 10 um."""
     s = np.linspace(0.0, ROAD.length_m - 1, 4001)
@@ -178,12 +215,11 @@ def test_drive_config_allows_for_what_the_simulated_gyros_leave_out():
     its gyros leave out: on the bundled sample drive, the decoded rates less the true bias,
     integrated the filter's way over 1 s and 4 s windows from the truth, drift by no more than
     the filter's process noise for them, ``sqrt(gyro_noise^2 dt + walk^2)`` per sqrt(s) (measured
-    0.002-0.006 deg/sqrt(s) in roll and yaw, 0.012-0.015 in pitch, against 0.021: the pitch's excess
-    is the 100 Hz integration across the two joints where the simulated roll rate steps, 0.03 and
-    0.02 deg in the windows holding them, and with three 4 s windows the figure is the RMS of
-    those two steps). The check has power: a 1 % scale-factor error, which real gyros have and the
-    simulator's do not, drifts 0.055 deg/sqrt(s) in yaw through the curve (0.025 in roll), 2.7
-    times the allowance."""
+    0.003-0.006 deg/sqrt(s) in roll and yaw, 0.007-0.009 in pitch, against 0.011; before the
+    clothoid joints were eased, 0.012-0.015 in pitch: the 100 Hz integration across the two joints
+    where the simulated roll rate stepped). The check has power: a 1 % scale-factor error, which
+    real gyros have and the simulator's do not, drifts 0.055 deg/sqrt(s) in yaw through the curve
+    (0.025 in roll), about 5 times the allowance."""
     import pandas as pd
 
     from drivesim.drive import SIM_ATTITUDE_WALK_DEG_SQRT_S
