@@ -136,7 +136,8 @@ def test_the_twist_map_takes_the_runoffs_yaw_error_out(runoff_from_before):
     (``drivesim.road.EASE_M``) at 3 / 5 / 7 / 10 m the RMS pitch was 0.14 / 0.26 / 0.16 / 0.34 and
     yaw 0.64 / 0.70 / 0.43 / 1.00 (0.14 and 0.53 with plain clothoids), the medians 0.06-0.12 and
     0.29-0.65. Bars: the typical frame's (median) pitch under 0.15 deg and a third of the plane's,
-    its yaw under 0.6 of the plane's; outliers included (RMS), both under 0.6 of the plane's. The
+    its yaw under 0.6 of the plane's; outliers included (RMS), both under 0.6 of the plane's and
+    the yaw under 0.8 deg (its bar before the ease; the pitch's 0.25 was not kept). The
     roll is the one relative to the road at the cross-sections in both (for the fusion), not
     scored here."""
     sc, markings, images, truth = runoff_from_before
@@ -159,4 +160,4 @@ def test_the_twist_map_takes_the_runoffs_yaw_error_out(runoff_from_before):
     ((pitch0, yaw0), (pitch0_med, yaw0_med)), ((pitch1, yaw1), (pitch1_med, yaw1_med)) = errors[False], errors[True]
     assert yaw0 > 1.0 and pitch0 > 0.4               # the plane's error, for the comparison to mean something
     assert pitch1_med < 0.15 and pitch1_med < pitch0_med / 3 and yaw1_med < 0.6 * yaw0_med, errors
-    assert pitch1 < 0.6 * pitch0 and yaw1 < 0.6 * yaw0, errors
+    assert pitch1 < 0.6 * pitch0 and yaw1 < 0.8 and yaw1 < 0.6 * yaw0, errors

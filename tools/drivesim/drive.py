@@ -49,8 +49,8 @@ VIDEO_NAMES = {"mp4v": "video.mp4", "ffv1": "video.avi", "mjpg": "video.avi", "p
 #: simulated motion (at 1 kHz it vanishes). Measured with :func:`fusion.metrics.gyro_attitude_drift`
 #: (decoded rates less the true bias, windows of 1 and 4 s, the gyro noise's 0.005 deg/sqrt(s)
 #: included) on the bundled sample drive: 0.0056 / 0.0067 / 0.0027 deg/sqrt(s) in roll / pitch /
-#: yaw over 1 s, 0.0033 / 0.0093 / 0.0026 over 4 s; on the five benchmark drives up to 0.0090
-#: (README, "What the simulated gyros leave out"). 0.01 with the noise's 0.005 allows 0.0112.
+#: yaw over 1 s, 0.0033 / 0.0093 / 0.0026 over 4 s; on the five benchmark drives 0.0021-0.0068
+#: (README, "What the gyros leave out of the attitude"). 0.01 with the noise's 0.005 allows 0.0112.
 #: Until the road's clothoid joints were eased (:data:`drivesim.road.EASE_M`) this was 0.02: the
 #: roll rate stepped at every joint and the 100 Hz integration lost 0.02-0.03 deg of pitch there
 #: (the sample drive's pitch drifted 0.0125 / 0.0145 deg/sqrt(s); ``tests/test_simulator.py``
