@@ -29,7 +29,7 @@ Process (one IMU interval ``dt``, rates ``w = gyro - bias`` averaged over the in
                                                                  curvature state and the
                                                                  lateral offset d of vision
     bank += bank_rate dt;  grade += grade_rate dt;  speed += accel_x dt
-    bank_rate' = -bank_rate / tau_bank + noise     (first-order Gauss-Markov)
+    bank_rate' = -(bank_rate - r_map) / tau_bank + noise   (first-order Gauss-Markov)
     grade_rate' = -grade_rate / tau_grade + noise  (likewise)
     grade, gyro_bias, accel_bias, accel_x, curvature: random walks
 
@@ -58,6 +58,23 @@ it decays faster (0.3 s), so that the bank holds instead of extrapolating the la
 With the vision roll deferred, the rate's sigma is scheduled by the runoffs the camera sees
 ahead (:attr:`NoiseModel.bank_rate_preview_gain`): on steady road none is in view and the bank
 holds between the vision's rolls, which come in bursts, one road patch per dash.
+
+Between the bursts the rate reverts to ``r_map``, the road's bank rate under the wheels as the
+frames' twists (below) measured it ahead of the vehicle, kept by when the vehicle gets there and
+linear between the road patches measured (:meth:`fusion.engine.FusionStream._bank_rate_target`,
+:attr:`ImuStep.bank_rate_target_rad_s`), with the correlation time ``tau_bank`` of
+:attr:`NoiseModel.bank_rate_tau_mapped_s` (0.1 s); where no patch ahead is mapped, ``r_map = 0``
+with the times above. It is a known input of the prediction, not a measurement: each twist is
+measured once, when its roll lands (``update_road_twist``); the map only carries what the
+frames said of the road between the landings. Before it, at the end of the left-hand drive's
+runoff the rate held -1.3 to -1.0 deg/s through a 0.3 s hole between two bursts where the
+truth's fell to 0, the frames captured meanwhile having measured about 0 there: the bank ran
+0.45 deg off, roll and yaw with it. Measured on the bench's five HD drives (forward, the same
+vision), roll / yaw / bank and NEES share in band, without and with the map: 60 s 0.108 / 0.074
+/ 0.120, 45 % -> 0.073 / 0.070 / 0.092, 58 %; right-hand 0.078 / 0.093 / 0.110, 23 % -> 0.076 /
+0.090 / 0.119, 75 %; left-hand 0.049 / 0.101 / 0.224 -> 0.038 / 0.095 / 0.219; hold-out 0.028 /
+0.057 / 0.219, 69 % -> 0.030 / 0.057 / 0.223, 82 %; hill 0.028 / 0.034 / 0.200 -> 0.029 / 0.037
+/ 0.223 (the map's steady-road bias, -0.01 deg/s, integrated into the bank).
 
 Vision (roll, pitch, yaw relative to the road, :meth:`AttitudeEKF.update_vision`). The
 estimator's roll is relative to the road ``L = roll_lookahead_m`` ahead, where its lane
@@ -250,6 +267,15 @@ class NoiseModel:
     #: The driving noise stays that of ``bank_rate_tau_s``: the rate's stationary 1-sigma is
     #: then ``sqrt(0.3 / 1)`` of ``bank_rate_rad_s``.
     bank_rate_tau_no_vision_s: float = 0.3
+    #: Its correlation time about the road's bank rate ahead where the frames' twists mapped it
+    #: (:attr:`ImuStep.bank_rate_target_rad_s`; module docstring, "Process"): the rate then
+    #: follows the map within a tenth of a second between the bursts of deferred rolls. Measured
+    #: on the bench's five HD drives (forward, the same vision), 1 / 0.3 / 0.2 / 0.1 / 0.05 /
+    #: 0.02 s: the left-hand drive's yaw 0.108 / 0.100 / 0.098 / 0.095 / 0.093 / 0.091 deg, the
+    #: hill drive's bank 0.202 / 0.203 / 0.206 / 0.223 / 0.267 / 0.353 (the map's steady-road
+    #: bias, -0.01 to -0.02 deg/s, integrated), the hold-out drive's roll 0.028 / 0.028 / 0.028
+    #: / 0.030 / 0.036 / 0.047 (docs/fusion-notes.md, seventeenth session).
+    bank_rate_tau_mapped_s: float = 0.1
     #: The bank-rate 1-sigma scheduled by what the camera sees ahead (with the vision roll
     #: deferred): ``max(floor, gain |rate ahead|, gain |bank_rate|)``, where the rate ahead is
     #: the mean bank rate between the vehicle and the vision's roll cross-sections. On steady
@@ -604,6 +630,9 @@ class ImuStep(NamedTuple):
     follow_road: bool = False        # no lane fit: the road turns with the vehicle
     lateral_offset_m: float = 0.0    # vehicle's offset from the lane line the curvature is of
     vision_gap: bool = False         # no vision for a while: the bank and grade rates decay fast (held)
+    #: The road's bank rate at the vehicle as the frames' twists mapped it ahead (NaN: not
+    #: mapped), what the bank rate reverts to (module docstring, "Process"), rad/s.
+    bank_rate_target_rad_s: float = math.nan
 
 
 # ---- small dense products, written as loops: for these sizes (3x3, 16x16, 16x3) they are
@@ -779,6 +808,12 @@ def accel_r_scale(noise: NoiseModel, update_period_s: float) -> float:
     return 1.0 / (noise.accel_meas_rate_hz * update_period_s)
 
 
+def _target(u: ImuStep) -> float:
+    """The bank rate's mean over interval ``u`` (rad/s): the mapped road's, else 0."""
+    t = u.bank_rate_target_rad_s
+    return 0.0 if math.isnan(t) else t
+
+
 class AttitudeEKF(ExtendedKalmanFilter):
     """filterpy EKF with the nonlinear process model of the module docstring.
 
@@ -848,7 +883,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
     def predict_x(self, u: ImuStep = None) -> None:
         """Propagate the state over one IMU interval (module docstring, "Process")."""
         self.x = _predict_x(self.x, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m,
-                            self.has_pitch_rate, self._rate_taus(u))
+                            self.has_pitch_rate, self._rate_taus(u), _target(u))
 
     def set_bank_rate_sigma(self, sigma_rad_s: float | None) -> None:
         """Stationary 1-sigma of the bank rate from now on (None: ``noise.bank_rate_rad_s``);
@@ -864,10 +899,13 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     def _rate_taus(self, u: ImuStep) -> tuple[float, float, float]:
         """Correlation times of the bank rate, the grade rate and (without a pitch gyro) the
-        pitch rate over this interval: while the vision is away, ``bank_rate_tau_no_vision_s``
-        for the bank rate (the bank holds); the grade rate keeps its own, the accelerometer
-        measures it (module docstring)."""
+        pitch rate over this interval: where the road ahead is mapped (a finite
+        :attr:`ImuStep.bank_rate_target_rad_s`), ``bank_rate_tau_mapped_s`` for the bank rate;
+        else while the vision is away, ``bank_rate_tau_no_vision_s`` (the bank holds); the grade
+        rate keeps its own, the accelerometer measures it (module docstring)."""
         n = self.noise
+        if not math.isnan(u.bank_rate_target_rad_s):
+            return n.bank_rate_tau_mapped_s, n.grade_rate_tau_s, n.no_pitch_rate_tau_s
         if u.vision_gap:
             return min(n.bank_rate_tau_s, n.bank_rate_tau_no_vision_s), n.grade_rate_tau_s, n.no_pitch_rate_tau_s
         return n.bank_rate_tau_s, n.grade_rate_tau_s, n.no_pitch_rate_tau_s
@@ -899,7 +937,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self.x, self.P, self.F, self.Q, road_rate = _propagate(
             self.x, self.P, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
             self._rate_taus(u), self._q_per_s(u), n.gyro_noise_rad_s**2,
-            n.yaw_rel_walk_no_lanes_rad_sqrt_s**2)
+            n.yaw_rel_walk_no_lanes_rad_sqrt_s**2, _target(u))
         self.x_prior, self.P_prior = self.x.copy(), self.P.copy()
         return road_rate
 
@@ -1072,7 +1110,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         (self.x_prior, self.P_prior, self.F, self.Q, road_rate, ok_v, ok_g, d2, self.x, self.P) = _imu_step(
             self.x, self.P, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
             self._rate_taus(u), self._q_per_s(u), n.gyro_noise_rad_s**2, n.yaw_rel_walk_no_lanes_rad_sqrt_s**2,
-            float(speed_m_s), n.speed_meas_m_s**2, self._gate[1], np.asarray(accel_m_s2, dtype=float),
+            _target(u), float(speed_m_s), n.speed_meas_m_s**2, self._gate[1], np.asarray(accel_m_s2, dtype=float),
             np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float), self.lever_arm_m,
             gravity, self._accel_r(r_scale), self._gate[3], float(gyro_dot_dt_s))
         self.x_post, self.P_post = self.x, self.P
@@ -1223,9 +1261,9 @@ def _road_turn_rate(x, gyro, follow, offset, has_q):
 
 
 @nb.njit(cache=True)
-def _predict_x(x0, gyro, dt, follow, offset, has_q, taus):
+def _predict_x(x0, gyro, dt, follow, offset, has_q, taus, rate_target=0.0):
     """Process model of the module docstring over one interval ``dt``; ``taus``: the bank rate's
-    and the grade rate's correlation times."""
+    and the grade rate's correlation times; ``rate_target``: the bank rate's mean (rad/s)."""
     x = x0.copy()
     p, q, r = _body_rates(x, gyro, has_q)
     R = _mm(R_from_rpy_scalar(x[0], x[1], x[2]), so3_exp_scalar(p * dt, q * dt, r * dt))
@@ -1234,7 +1272,7 @@ def _predict_x(x0, gyro, dt, follow, offset, has_q, taus):
     if not follow:
         x[2] = yaw - _road_turn_rate(x, gyro, False, offset, has_q) * dt
     x[3] += x[10] * dt
-    x[10] *= math.exp(-dt / taus[0])
+    x[10] = rate_target + (x[10] - rate_target) * math.exp(-dt / taus[0])
     x[4] += x[15] * dt
     x[15] *= math.exp(-dt / taus[1])
     if not has_q:
@@ -1416,11 +1454,11 @@ def _kalman_step(x, P, y, PHT, SI):
 
 
 @nb.njit(cache=True)
-def _propagate(x, P, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_var, yaw_walk_var):
+def _propagate(x, P, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_var, yaw_walk_var, rate_target=0.0):
     """:meth:`AttitudeEKF.propagate`: ``F, Q`` at the prior state, the state through the process
     model, ``P = F P F^T + Q``, and the road's heading rate at the new state."""
     F, Q = _transition(x, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_var, yaw_walk_var)
-    x1 = _predict_x(x, gyro, dt, follow, offset, has_q, taus)
+    x1 = _predict_x(x, gyro, dt, follow, offset, has_q, taus, rate_target)
     return x1, _propagate_cov(P, F, Q), F, Q, _road_turn_rate(x1, gyro, follow, offset, has_q)
 
 
@@ -1685,12 +1723,12 @@ def _road_twist_update(x, P, twist, sigma, lookahead_m, sig_prm, gate1):
 
 
 @nb.njit(cache=True)
-def _imu_step(x, P, gyro_mean, dt, follow, offset, has_q, taus, q_per_s, gyro_var, yaw_walk_var,
+def _imu_step(x, P, gyro_mean, dt, follow, offset, has_q, taus, q_per_s, gyro_var, yaw_walk_var, rate_target,
               speed, speed_var, gate1, accel, gyro, gyro_dot, rho, gravity, R_accel, gate3, dot_dt):
     """:meth:`AttitudeEKF.propagate_and_update`: ``(x_prior, P_prior, F, Q, road_rate,
     speed_ok, gravity_ok, last d2, x, P)``."""
     x1, P1, F, Q, road_rate = _propagate(x, P, gyro_mean, dt, follow, offset, has_q, taus, q_per_s, gyro_var,
-                                         yaw_walk_var)
+                                         yaw_walk_var, rate_target)
     x2, P2 = x1, P1
     ok_v, ok_g, d2 = True, True, math.nan
     if not math.isnan(speed):

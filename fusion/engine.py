@@ -39,6 +39,9 @@ __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 #: (:attr:`fusion.ekf.NoiseModel.bank_rate_tau_no_vision_s`): three frames at 30 fps.
 _VISION_GAP_S = 0.1
 
+#: The twist map's interpolation spans no more than this between two roads measured, s.
+_TWIST_SPAN_S = 1.0
+
 _time_of = attrgetter("t_s")
 #: IMU intervals whose median is taken as the sample period (the accelerometer noise's rate).
 _PERIOD_SAMPLES = 20
@@ -75,6 +78,9 @@ class FusionOptions:
     #: Apply the vision roll when the vehicle reaches the road it was measured on
     #: (:class:`fusion.ekf.RollAhead`) instead of modelling the bank ahead with the bank rate.
     defer_roll: bool = True
+    #: The bank rate reverts to the road's bank rate that the frames' twists mapped ahead, where
+    #: there is one (:meth:`FusionStream._bank_rate_target`), instead of to 0.
+    bank_rate_map: bool = True
     #: IMU samples further apart than this (a gap in the CAN stream) are not integrated
     #: across: the mean of two gyro readings says nothing about a motorcycle's roll over
     #: more than a fifth of a second (its roll modes are at 1-2 Hz). The filter starts again
@@ -174,6 +180,10 @@ class FusionStream:
         #: (ahead_s, resumed, defer, twist_now): what a replay applies them with.
         self._decisions: dict[int, tuple[float, bool, bool, bool]] = {}
         self._pending: list[VisionMeasurement | RollAhead] = []   # waiting for the IMU to pass their time
+        #: The road's bank rate ahead as the frames' twists measured it (:meth:`_bank_rate_target`):
+        #: when the vehicle gets there (s), the rate (rad/s), the frame's capture time (s); by the first.
+        self._twist_due: list[float] = []
+        self._twist_map: list[tuple[float, float, float]] = []
         self._n = 0
         #: the first IMU intervals (s): their median is the sample period that scales the
         #: accelerometer noise to the IMU's rate (fixed once known, so that replays agree; the
@@ -322,6 +332,8 @@ class FusionStream:
         newest = self._hist[-1].t if self._hist and not clock_reset else math.inf
         self._hist.clear()
         self._decisions.clear()
+        self._twist_due.clear()
+        self._twist_map.clear()
         # results from before the gap (after a clock that went back: all) do not carry across
         self._drop_pending(lambda p: p.t_s <= newest or isinstance(p, RollAhead))
         if clock_reset:
@@ -448,7 +460,8 @@ class FusionStream:
         # deg off with a sigma of 1.8 after 6 s without a wheel speed, every gravity update
         # refused from then on (a review)
         follow = t1 - t_fit > self.options.lane_fit_hold_s or not self._speed_initialized
-        u = ImuStep(t1 - t0, gyro, follow, offset, vision_gap=t1 - self._last_vision_t > _VISION_GAP_S)
+        u = ImuStep(t1 - t0, gyro, follow, offset, t1 - self._last_vision_t > _VISION_GAP_S,
+                    self._bank_rate_target(t1) if self._twist_due and self.options.bank_rate_map else math.nan)
         roll0 = ekf.x[S.ROLL_W]
         if sample is None:
             self._road_rate = ekf.propagate(u)
@@ -464,6 +477,38 @@ class FusionStream:
         if self.record:
             self.steps.append(StepRecord(t1, ekf.F.copy(), ekf.x_prior.copy(), ekf.P_prior.copy(),
                                          ekf.x_prior.copy(), ekf.P_prior.copy(), imu_index))
+
+    def _map_twist(self, m: VisionMeasurement, ahead_s: float) -> None:
+        """Keep frame ``m``'s road twist as the bank rate of the road ``ahead_s`` ahead
+        (:meth:`_bank_rate_target`): ``v (tau - turned) / cos(phi)``, the inverse of
+        :meth:`fusion.ekf.AttitudeEKF.update_road_twist`'s model at the state of now."""
+        x = self.ekf.x
+        _, turned, phi = road_ahead_as_seen(x[S.BANK], x[S.CURVATURE], m.roll_lookahead_m, x[S.GRADE])
+        rate = x[S.SPEED] * (m.road_twist_rad_m - turned) / math.cos(phi)
+        due = m.t_s + ahead_s
+        k = bisect.bisect_right(self._twist_due, due)
+        self._twist_due.insert(k, due)
+        self._twist_map.insert(k, (due, rate, m.t_s))
+        # what a replay can still reach (history_s back) needs the road from there on
+        old = bisect.bisect_left(self._twist_due, m.t_s - 2.0 * self.options.history_s - _TWIST_SPAN_S)
+        if old:
+            del self._twist_due[:old], self._twist_map[:old]
+
+    def _bank_rate_target(self, t: float) -> float:
+        """The bank rate the filter's Gauss-Markov rate reverts to at ``t``: the road's, from the
+        twists the frames captured up to ``t`` measured ahead, linear between the last road
+        reached and the next one; with none ahead, 0 (the rate decays as it did without the map).
+        With none reached within :data:`_TWIST_SPAN_S`, the next one's."""
+        due, entries = self._twist_due, self._twist_map
+        k = bisect.bisect_right(due, t)
+        ahead = next((e for e in entries[k:] if e[2] <= t), None)
+        if ahead is None:
+            return math.nan
+        behind = next((e for e in reversed(entries[:k]) if e[2] <= t), None)
+        if behind is None or ahead[0] - behind[0] > _TWIST_SPAN_S:
+            return ahead[1]
+        w = (t - behind[0]) / (ahead[0] - behind[0]) if ahead[0] > behind[0] else 1.0
+        return behind[1] + w * (ahead[1] - behind[1])
 
     def _speed_update(self, speed: float, s: _ImuSample | None = None) -> bool:
         """Wheel speed; the first one (and one after a run of rejections) sets the state; the
@@ -538,6 +583,8 @@ class FusionStream:
         if twist_now:
             tw_ok = ekf.update_road_twist(m.road_twist_rad_m, m.road_twist_sigma_rad_m, m.roll_lookahead_m)
             self.counts["twist_used" if tw_ok else "twist_rejected"] += first
+        if first and (defer or twist_now) and ahead_s > 0.0 and math.isfinite(m.road_twist_rad_m):
+            self._map_twist(m, ahead_s)
         rate_ahead = 0.0
         if defer:
             dt_ahead = ahead_s

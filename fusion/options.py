@@ -55,6 +55,7 @@ _NOISE_KEYS = {
     "no_pitch_rate_tau_s": ("no_pitch_rate_tau_s", float, 0.01, 10.0),
     "bank_rate_deg_s": ("bank_rate_rad_s", math.radians, 0.0, 100.0),
     "bank_rate_tau_s": ("bank_rate_tau_s", float, 0.01, 1000.0),
+    "bank_rate_tau_mapped_s": ("bank_rate_tau_mapped_s", float, 0.01, 1000.0),
     "bank_rate_preview_floor_deg_s": ("bank_rate_preview_floor_rad_s", math.radians, 0.0, 100.0),
     "bank_rate_preview_gain": ("bank_rate_preview_gain", float, 0.0, 100.0),
     "grade_walk_deg_sqrt_s": ("grade_walk_rad_sqrt_s", math.radians, 0.0, 100.0),
@@ -99,6 +100,7 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
         lane_fit_hold_s=t.get("lane_fit_hold_s", "float", d.lane_fit_hold_s, min=0.0, max=10.0),
         reacquire_after_rejections=t.get("reacquire_after_rejections", "int", d.reacquire_after_rejections, min=1),
         defer_roll=t.get("defer_roll", "bool", d.defer_roll),
+        bank_rate_map=t.get("bank_rate_map", "bool", d.bank_rate_map),
         max_imu_gap_s=t.get("max_imu_gap_s", "float", d.max_imu_gap_s, min=1e-3, max=60.0),
     )
     run = RunSettings(
