@@ -499,16 +499,19 @@ class FusionStream:
         twists the frames captured up to ``t`` measured ahead, linear between the last road
         reached and the next one; with none ahead, 0 (the rate decays as it did without the map).
         With none reached within :data:`_TWIST_SPAN_S`, the next one's."""
-        due, entries = self._twist_due, self._twist_map
-        k = bisect.bisect_right(due, t)
-        ahead = next((e for e in entries[k:] if e[2] <= t), None)
-        if ahead is None:
+        entries = self._twist_map
+        n, j = len(entries), bisect.bisect_right(self._twist_due, t)
+        i = j - 1
+        while j < n and entries[j][2] > t:   # captured later: a replay's
+            j += 1
+        if j == n:
             return math.nan
-        behind = next((e for e in reversed(entries[:k]) if e[2] <= t), None)
-        if behind is None or ahead[0] - behind[0] > _TWIST_SPAN_S:
-            return ahead[1]
-        w = (t - behind[0]) / (ahead[0] - behind[0]) if ahead[0] > behind[0] else 1.0
-        return behind[1] + w * (ahead[1] - behind[1])
+        while i >= 0 and entries[i][2] > t:
+            i -= 1
+        (t1, r1, _), (t0, r0, _) = entries[j], entries[i] if i >= 0 else (-math.inf, 0.0, 0.0)
+        if t1 - t0 > _TWIST_SPAN_S:
+            return r1
+        return r0 + (t - t0) / (t1 - t0) * (r1 - r0) if t1 > t0 else r1
 
     def _speed_update(self, speed: float, s: _ImuSample | None = None) -> bool:
         """Wheel speed; the first one (and one after a run of rejections) sets the state; the
