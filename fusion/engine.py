@@ -497,8 +497,9 @@ class FusionStream:
     def _bank_rate_target(self, t: float) -> float:
         """The bank rate the filter's Gauss-Markov rate reverts to at ``t``: the road's, from the
         twists the frames captured up to ``t`` measured ahead, linear between the last road
-        reached and the next one; with none ahead, 0 (the rate decays as it did without the map).
-        With none reached within :data:`_TWIST_SPAN_S`, the next one's."""
+        reached and the next one (with none reached within :data:`_TWIST_SPAN_S`, the next one's);
+        0 within :attr:`fusion.ekf.NoiseModel.bank_rate_map_deadband_rad_s` (steady road); NaN
+        with none ahead (the rate decays as it did without the map)."""
         entries = self._twist_map
         n, j = len(entries), bisect.bisect_right(self._twist_due, t)
         i = j - 1
@@ -510,8 +511,10 @@ class FusionStream:
             i -= 1
         (t1, r1, _), (t0, r0, _) = entries[j], entries[i] if i >= 0 else (-math.inf, 0.0, 0.0)
         if t1 - t0 > _TWIST_SPAN_S:
-            return r1
-        return r0 + (t - t0) / (t1 - t0) * (r1 - r0) if t1 > t0 else r1
+            r = r1
+        else:
+            r = r0 + (t - t0) / (t1 - t0) * (r1 - r0) if t1 > t0 else r1
+        return r if abs(r) > self.options.noise.bank_rate_map_deadband_rad_s else 0.0
 
     def _speed_update(self, speed: float, s: _ImuSample | None = None) -> bool:
         """Wheel speed; the first one (and one after a run of rejections) sets the state; the

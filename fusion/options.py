@@ -56,6 +56,7 @@ _NOISE_KEYS = {
     "bank_rate_deg_s": ("bank_rate_rad_s", math.radians, 0.0, 100.0),
     "bank_rate_tau_s": ("bank_rate_tau_s", float, 0.01, 1000.0),
     "bank_rate_tau_mapped_s": ("bank_rate_tau_mapped_s", float, 0.01, 1000.0),
+    "bank_rate_map_deadband_deg_s": ("bank_rate_map_deadband_rad_s", math.radians, 0.0, 100.0),
     "bank_rate_preview_floor_deg_s": ("bank_rate_preview_floor_rad_s", math.radians, 0.0, 100.0),
     "bank_rate_preview_gain": ("bank_rate_preview_gain", float, 0.0, 100.0),
     "grade_walk_deg_sqrt_s": ("grade_walk_rad_sqrt_s", math.radians, 0.0, 100.0),

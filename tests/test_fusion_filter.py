@@ -753,8 +753,8 @@ def test_the_bank_rate_follows_the_twists_mapped_ahead_between_the_bursts(drive)
     and its rate reverts to the map's, not to 0 (``FusionOptions.bank_rate_map``). The twist
     drawn as in the test above, 20 % low and with 0.004 deg/m of noise. Measured on the
     synthetic 60 s drive, without and with the map: bank rate within 1 s of the runoffs 1.28
-    and 0.64 deg/s RMS, roll 0.283 and 0.187 deg, bank 0.281 and 0.190 deg (exact twists:
-    1.17 / 0.40, 0.246 / 0.130, 0.249 / 0.143)."""
+    and 0.64 deg/s RMS, roll 0.283 and 0.182 deg, bank 0.281 and 0.185 deg (exact twists:
+    1.17 / 0.39, 0.246 / 0.124, 0.249 / 0.135)."""
     tr = drive.truth
     tt = tr["t_s"].to_numpy()
     t = drive.vision["t_s"].to_numpy()
@@ -777,6 +777,33 @@ def test_the_bank_rate_follows_the_twists_mapped_ahead_between_the_bursts(drive)
     for angle in ("roll_deg", "bank_deg"):
         err = {m: rmse_deg(f, tr, angle) for m, f in runs.items()}
         assert err[True] < 0.8 * err[False], (angle, err)
+
+
+def test_the_twist_map_interpolates_the_road_measured_by_then():
+    """The bank rate's mean at ``t`` (``FusionStream._bank_rate_target``): linear between the
+    last road patch reached and the next, only from frames captured by ``t`` (a replay of late
+    results must see what the in-time run saw), 0 within the deadband, NaN with nothing ahead."""
+    def stream(entries):
+        s = FusionStream(options=OPTIONS)
+        for due, rate_deg_s, captured in entries:
+            s._twist_due.append(due)
+            s._twist_map.append((due, math.radians(rate_deg_s), captured))
+        return lambda t: math.degrees(s._bank_rate_target(t))
+
+    # (due: when the vehicle gets there, s; rate, deg/s; capture time of the frame, s)
+    target = stream([(10.0, -2.0, 9.4), (10.4, 5.0, 10.45), (10.6, 0.0, 9.9), (10.7, 3.0, 10.3)])
+    assert target(9.8) == pytest.approx(-2.0)     # nothing reached yet: the next patch's
+    assert target(10.15) == pytest.approx(-1.5)   # 10.4's frame not captured yet: 10.0 to 10.6
+    assert target(10.3) == pytest.approx(-1.0)
+    assert target(10.5) == pytest.approx(2.5)     # captured by now: 10.4 to 10.6
+    assert target(10.65) == pytest.approx(1.5)
+    assert math.isnan(target(10.8))               # nothing mapped ahead: the rate's old model
+    deadband = math.degrees(OPTIONS.noise.bank_rate_map_deadband_rad_s)
+    assert 0.0 < deadband < 1.0
+    target = stream([(10.0, -2.0, 9.0), (10.6, 0.0, 9.0)])
+    t_of = lambda rate: 10.6 + rate / 2.0 * 0.6   # noqa: E731
+    assert target(t_of(-0.6 * deadband)) == 0.0   # steady road
+    assert target(t_of(-1.5 * deadband)) == pytest.approx(-1.5 * deadband)
 
 
 def test_twist_changing_across_the_view_is_modelled(drive, forward):
