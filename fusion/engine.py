@@ -460,8 +460,9 @@ class FusionStream:
         # deg off with a sigma of 1.8 after 6 s without a wheel speed, every gravity update
         # refused from then on (a review)
         follow = t1 - t_fit > self.options.lane_fit_hold_s or not self._speed_initialized
-        u = ImuStep(t1 - t0, gyro, follow, offset, t1 - self._last_vision_t > _VISION_GAP_S,
-                    self._bank_rate_target(t1) if self._twist_due and self.options.bank_rate_map else math.nan)
+        mapped = self._bank_rate_target(t1) if self._twist_due and self.options.bank_rate_map else math.nan
+        u = ImuStep(t1 - t0, gyro, follow, offset, vision_gap=t1 - self._last_vision_t > _VISION_GAP_S,
+                    bank_rate_target_rad_s=mapped)
         roll0 = ekf.x[S.ROLL_W]
         if sample is None:
             self._road_rate = ekf.propagate(u)
