@@ -250,3 +250,24 @@ def test_drive_config_allows_for_what_the_simulated_gyros_leave_out():
     np.testing.assert_allclose(no_heading[:2], gyro_attitude_drift(t, w, truth, 1.0)[:2], rtol=1e-9)
     assert np.isnan(no_heading[2])
     assert np.max(gyro_attitude_drift(t, 1.01 * w, truth, 1.0)) > 2 * allowed
+
+
+def test_a_docstring_edit_keeps_the_drive_cache_key(tmp_path):
+    """The benchmarks cache rendered drives under a key of the scenario and the simulator's
+    code (``drivesim.code_key``): a docstring, comment or blank line renders the same drive and
+    keeps the key; a changed number, a changed statement does not."""
+    from drivesim.code_key import drive_key
+
+    base = '"""Module doc."""\nEASE_M = 5.0\n\n\ndef f(x):\n    """Doc."""\n    return x * EASE_M  # why\n'
+    variants = {
+        "same": '"""Another doc."""\n# a comment\nEASE_M = 5.0\n\ndef f(x):\n    """Other."""\n\n    return x * EASE_M\n',
+        "number": base.replace("5.0", "5.5"),
+        "statement": base.replace("x * EASE_M", "x / EASE_M"),
+    }
+    key = {}
+    for name, text in {"base": base, **variants}.items():
+        (tmp_path / f"{name}.py").write_text(text)
+        key[name] = drive_key(b"scenario", [tmp_path / f"{name}.py"])
+    assert key["same"] == key["base"]
+    assert key["number"] != key["base"] and key["statement"] != key["base"]
+    assert drive_key(b"other scenario", [tmp_path / "base.py"]) != key["base"]

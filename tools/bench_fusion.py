@@ -71,11 +71,12 @@ BARS = {"roll": 0.15, "pitch": 0.15, "yaw": 0.1, "bank": 0.3}
 
 def drive_key(scenario: bytes) -> str:
     """Cache key of a rendered drive: its scenario (file bytes, and whatever varies it) and the
-    simulator modules that decide the drive's video, CAN log and truth."""
-    h = hashlib.sha256(scenario)
-    for f in ("road.py", "trajectory.py", "render.py", "imu_model.py", "canlog.py", "drive.py", "scenario.py"):
-        h.update((ROOT / "tools" / "drivesim" / f).read_bytes())
-    return h.hexdigest()[:12]
+    code of the simulator modules that decide the drive's video, CAN log and truth
+    (:func:`drivesim.code_key.drive_key`: their docstrings apart)."""
+    from drivesim.code_key import drive_key as key
+
+    return key(scenario, (ROOT / "tools" / "drivesim" / f for f in
+                          ("road.py", "trajectory.py", "render.py", "imu_model.py", "canlog.py", "drive.py", "scenario.py")))
 
 
 def cached_drive_folder(name: str) -> Path:

@@ -34,7 +34,6 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
-import hashlib  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -88,10 +87,11 @@ class CachedDrive:
 
 
 def cache_key(scenario_path: str | Path) -> str:
-    h = hashlib.sha256(Path(scenario_path).read_bytes())
-    for name in _SIM_FILES:
-        h.update((ROOT / "tools" / "drivesim" / name).read_bytes())
-    return h.hexdigest()[:12]
+    """Cache key of a scenario's frames: its bytes and the code of the simulator modules that
+    decide them (:func:`drivesim.code_key.drive_key`: their docstrings apart)."""
+    from drivesim.code_key import drive_key
+
+    return drive_key(Path(scenario_path).read_bytes(), (ROOT / "tools" / "drivesim" / name for name in _SIM_FILES))
 
 
 def cached_drive(scenario_path: str | Path, *, progress: bool = True, cache_root: Path = CACHE) -> CachedDrive:
