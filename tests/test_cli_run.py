@@ -1067,6 +1067,28 @@ def test_ctrl_c_while_the_command_loads_is_one_line(tmp_path, after):
     assert p.wait(timeout=120) == 130 and "".join(said) == "error: interrupted\n"
 
 
+@pytest.mark.parametrize("where", ["the watch", "after the watch"])
+def test_an_interrupt_between_the_parsing_and_the_command_is_one_line(monkeypatch, capsys, tmp_path, where):
+    """The interrupt that the start-up test above caught once in a full test run (exit -2, the
+    child killed by its own SIGINT after a KeyboardInterrupt escaped `main`): between the
+    parsing of the command line and the command, where neither `main`'s handlers were in
+    place. Raised here as Python's handler would raise it, while the interrupt watch is made
+    and just after it."""
+    import fusion.cli as cli
+
+    if where == "the watch":
+        def made(quiet=True):
+            raise KeyboardInterrupt
+        monkeypatch.setattr(cli, "_InterruptWatch", made)
+    else:
+        def disable():
+            raise KeyboardInterrupt
+        monkeypatch.setattr(cli.gc, "disable", disable)
+    assert cli.main(["run", "--out", str(tmp_path / "out"), "--quiet"]) == 130
+    assert capsys.readouterr().err == "error: interrupted\n"
+    assert cli._WATCH is None
+
+
 def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch, capsys, tmp_path):
     """Ctrl-C inside numba's compiler comes out as RuntimeError ("no compiled object yet"), in a
     vision worker as SystemError: a review got those tracebacks on 2 of 21 interrupts. Any

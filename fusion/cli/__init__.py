@@ -89,25 +89,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    global _WATCH
+    args = interrupted = None
+    collecting = gc.isenabled()
     try:
         # the subcommands' modules load here: an interrupt during them is said as any other
         # (it was a traceback of the imports, a review; the package's own imports before this
-        # are light: imu and vision load their heavy parts on first use)
+        # are light: imu and vision load their heavy parts on first use). One try from here to
+        # the command's end: an interrupt between the parsing and the watch's handler, or
+        # between that and the command, escaped as a traceback and a death by SIGINT (exit -2;
+        # once in the tests, `test_ctrl_c_while_the_command_loads_is_one_line`)
         parser = build_parser()
         argv = sys.argv[1:] if argv is None else argv
         args = parser.parse_args(argv)
-    except KeyboardInterrupt:
-        print("error: interrupted", file=sys.stderr)
-        return 130
-    if not args.debug:
-        # FFmpeg inside OpenCV prints its own line for a video it cannot open ("moov atom not
-        # found") before the one-line error this program gives for it
-        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
-    global _WATCH
-    interrupted = _WATCH = _InterruptWatch(quiet=not args.debug)
-    collecting = gc.isenabled()
-    gc.disable()   # until the command's imports are done (settle_heap)
-    try:
+        if not args.debug:
+            # FFmpeg inside OpenCV prints its own line for a video it cannot open ("moov atom not
+            # found") before the one-line error this program gives for it
+            os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+        interrupted = _WATCH = _InterruptWatch(quiet=not args.debug)
+        gc.disable()   # until the command's imports are done (settle_heap)
         status = int(args.func(args) or 0)
         if interrupted.seen:   # a library dropped the KeyboardInterrupt and the run went on
             print("warning: interrupted where it could not stop (inside a library): the run went on to the end",
@@ -118,9 +118,14 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except KeyboardInterrupt:
+        if interrupted is None:
+            print("error: interrupted", file=sys.stderr)
+            return 130
         return interrupted.said()
     except Exception as e:
-        if interrupted.seen and not args.debug:
+        if args is None:       # the parser itself: a bug, not a user's error
+            raise
+        if interrupted is not None and interrupted.seen and not args.debug:
             # Ctrl-C that surfaced as another error: numba's compiler turns it into "no compiled
             # object yet", a pool worker's into SystemError (2 of 21 interrupts in a review)
             return interrupted.said()
@@ -130,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         (gc.enable if collecting else gc.disable)()   # as the caller had it
-        interrupted.close()
+        if interrupted is not None:
+            interrupted.close()
         _WATCH = None
 
 
