@@ -782,7 +782,8 @@ def test_the_bank_rate_follows_the_twists_mapped_ahead_between_the_bursts(drive)
 def test_the_twist_map_interpolates_the_road_measured_by_then():
     """The bank rate's mean at ``t`` (``FusionStream._bank_rate_target``): linear between the
     last road patch reached and the next, only from frames captured by ``t`` (a replay of late
-    results must see what the in-time run saw), 0 within the deadband, NaN with nothing ahead."""
+    results must see what the in-time run saw), each patch's median, 0 within the deadband, NaN
+    with nothing ahead."""
     def stream(entries):
         s = FusionStream(options=OPTIONS)
         for due, rate_deg_s, captured in entries:
@@ -804,6 +805,11 @@ def test_the_twist_map_interpolates_the_road_measured_by_then():
     t_of = lambda rate: 10.6 + rate / 2.0 * 0.6   # noqa: E731
     assert target(t_of(-0.6 * deadband)) == 0.0   # steady road
     assert target(t_of(-1.5 * deadband)) == pytest.approx(-1.5 * deadband)
+    # one road patch measured by a dash's 20 frames, its last frame's twist far off (the edge the
+    # interpolation starts from): the patch's median, not that frame's (a review: 2.5 deg of bank)
+    patch = [(10.0 + 0.001 * k, -2.0, 9.3 + 0.033 * k) for k in range(19)] + [(10.02, 10.0, 9.93)]
+    target = stream([*patch, (10.6, 0.0, 9.95)])
+    assert target(10.31) == pytest.approx(-1.0, abs=0.01)
 
 
 def test_twist_changing_across_the_view_is_modelled(drive, forward):
