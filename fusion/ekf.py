@@ -73,10 +73,10 @@ runoff the rate held -1.3 to -1.0 deg/s through a 0.3 s hole between two bursts 
 truth's fell to 0, the frames captured meanwhile having measured about 0 there: the bank ran
 0.45 deg off, roll and yaw with it. Measured on the bench's five HD drives (forward, the same
 vision), roll / yaw / bank and NEES share in band, without and with the map: 60 s 0.108 / 0.074
-/ 0.120, 45 % -> 0.072 / 0.070 / 0.092, 49 %; right-hand 0.078 / 0.093 / 0.110, 23 % -> 0.073 /
-0.089 / 0.115, 24 %; left-hand 0.049 / 0.101 / 0.224 -> 0.037 / 0.094 / 0.214; hold-out 0.028 /
-0.057 / 0.219, 69 % -> 0.026 / 0.057 / 0.220, 74 %; hill 0.028 / 0.034 / 0.200 -> 0.025 / 0.035 /
-0.188.
+/ 0.120, 45 % -> 0.072 / 0.069 / 0.092, 48 %; right-hand 0.078 / 0.093 / 0.110, 23 % -> 0.075 /
+0.090 / 0.114, 23 %; left-hand 0.049 / 0.101 / 0.224 -> 0.040 / 0.095 / 0.216; hold-out 0.028 /
+0.057 / 0.219, 69 % -> 0.025 / 0.057 / 0.219, 74 %; hill 0.028 / 0.034 / 0.200 -> 0.025 / 0.035 /
+0.188 (the map's patches each their frames' median, :meth:`fusion.engine.FusionStream._patch_rate`).
 
 Vision (roll, pitch, yaw relative to the road, :meth:`AttitudeEKF.update_vision`). The
 estimator's roll is relative to the road ``L = roll_lookahead_m`` ahead, where its lane
@@ -271,12 +271,14 @@ class NoiseModel:
     bank_rate_tau_no_vision_s: float = 0.3
     #: Its correlation time about the road's bank rate ahead where the frames' twists mapped it
     #: (:attr:`ImuStep.bank_rate_target_rad_s`; module docstring, "Process"): the rate then
-    #: follows the map within a tenth of a second between the bursts of deferred rolls. Measured
+    #: follows the map within a tenth of a second between the bursts of deferred rolls. The
+    #: driving noise stays that of ``bank_rate_tau_s`` (as the scheduled sigma sets it): about the
+    #: map the rate's stationary 1-sigma is ``sqrt(0.1 / 1)`` of the free rate's. Measured
     #: on the bench's five HD drives (forward, the same vision, the deadband below), 1 / 0.3 /
     #: 0.1 / 0.05 s: the left-hand drive's yaw 0.108 / 0.100 / 0.094 / 0.092 deg, the hill
     #: drive's bank 0.202 / 0.200 / 0.188 / 0.166, the hold-out drive's roll 0.028 / 0.026 /
     #: 0.026 / 0.029 (docs/fusion-notes.md, seventeenth session: chosen before the deadband, and
-    #: kept).
+    #: kept; both sweeps before each patch's median, which moved these by up to 0.003 deg).
     bank_rate_tau_mapped_s: float = 0.1
     #: Mapped rates within this of 0 are taken as 0, steady road: three times the map's own
     #: error there (0.08 deg/s RMS against the truth; -0.02 deg/s on average on steady banked
