@@ -184,8 +184,8 @@ class FusionStream:
         self._decisions: dict[int, tuple[float, bool, bool, bool]] = {}
         self._pending: list[VisionMeasurement | RollAhead] = []   # waiting for the IMU to pass their time
         #: The road's bank rate ahead as the frames' twists measured it (:meth:`_bank_rate_target`):
-        #: when the vehicle gets there (s), the rate (rad/s), the frame's capture time (s); by the first.
-        self._twist_due: list[float] = []
+        #: when the vehicle gets there (s), the rate (rad/s), the frame's capture time (s); sorted
+        #: (so by the first: a probe ``(t, inf, inf)`` bisects after every entry due at ``t``).
         self._twist_map: list[tuple[float, float, float]] = []
         self._n = 0
         #: the first IMU intervals (s): their median is the sample period that scales the
@@ -335,7 +335,6 @@ class FusionStream:
         newest = self._hist[-1].t if self._hist and not clock_reset else math.inf
         self._hist.clear()
         self._decisions.clear()
-        self._twist_due.clear()
         self._twist_map.clear()
         # results from before the gap (after a clock that went back: all) do not carry across
         self._drop_pending(lambda p: p.t_s <= newest or isinstance(p, RollAhead))
@@ -463,7 +462,7 @@ class FusionStream:
         # deg off with a sigma of 1.8 after 6 s without a wheel speed, every gravity update
         # refused from then on (a review)
         follow = t1 - t_fit > self.options.lane_fit_hold_s or not self._speed_initialized
-        mapped = self._bank_rate_target(t1) if self._twist_due and self.options.bank_rate_map else math.nan
+        mapped = self._bank_rate_target(t1) if self._twist_map and self.options.bank_rate_map else math.nan
         u = ImuStep(t1 - t0, gyro, follow, offset, vision_gap=t1 - self._last_vision_t > _VISION_GAP_S,
                     bank_rate_target_rad_s=mapped)
         roll0 = ekf.x[S.ROLL_W]
@@ -489,14 +488,11 @@ class FusionStream:
         x = self.ekf.x
         _, turned, phi = road_ahead_as_seen(x[S.BANK], x[S.CURVATURE], m.roll_lookahead_m, x[S.GRADE])
         rate = x[S.SPEED] * (m.road_twist_rad_m - turned) / math.cos(phi)
-        due = m.t_s + ahead_s
-        k = bisect.bisect_right(self._twist_due, due)
-        self._twist_due.insert(k, due)
-        self._twist_map.insert(k, (due, rate, m.t_s))
+        bisect.insort_right(self._twist_map, (m.t_s + ahead_s, rate, m.t_s))
         # what a replay can still reach (history_s back) needs the road from there on
-        old = bisect.bisect_left(self._twist_due, m.t_s - 2.0 * self.options.history_s - _TWIST_SPAN_S)
+        old = bisect.bisect_left(self._twist_map, (m.t_s - 2.0 * self.options.history_s - _TWIST_SPAN_S,))
         if old:
-            del self._twist_due[:old], self._twist_map[:old]
+            del self._twist_map[:old]
 
     def _bank_rate_target(self, t: float) -> float:
         """The bank rate the filter's Gauss-Markov rate reverts to at ``t``: the road's, from the
@@ -506,7 +502,7 @@ class FusionStream:
         0 within :attr:`fusion.ekf.NoiseModel.bank_rate_map_deadband_rad_s` (steady road); NaN
         with none ahead (the rate decays as it did without the map)."""
         entries = self._twist_map
-        n, j = len(entries), bisect.bisect_right(self._twist_due, t)
+        n, j = len(entries), bisect.bisect_right(entries, (t, math.inf, math.inf))
         i = j - 1
         # a frame captured at t or later is not mapped yet in a run in time: a replay's
         while j < n and entries[j][2] >= t:
@@ -528,8 +524,8 @@ class FusionStream:
         :data:`_PATCH_S` of ``due``: on dashed lines one road patch is measured by every frame of
         a dash, and the map's edges would otherwise take one frame's twist for the whole gap to
         the next patch (a review: one frame's twist 0.3 deg/m off moved the bank 2.5 deg)."""
-        lo = bisect.bisect_left(self._twist_due, due - _PATCH_S)
-        hi = bisect.bisect_right(self._twist_due, due + _PATCH_S)
+        lo = bisect.bisect_left(self._twist_map, (due - _PATCH_S,))
+        hi = bisect.bisect_right(self._twist_map, (due + _PATCH_S, math.inf, math.inf))
         r = sorted(e[1] for e in self._twist_map[lo:hi] if e[2] < t)
         k = len(r)
         return r[k // 2] if k % 2 else 0.5 * (r[k // 2 - 1] + r[k // 2])

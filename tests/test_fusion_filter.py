@@ -786,9 +786,7 @@ def test_the_twist_map_interpolates_the_road_measured_by_then():
     with nothing ahead."""
     def stream(entries):
         s = FusionStream(options=OPTIONS)
-        for due, rate_deg_s, captured in entries:
-            s._twist_due.append(due)
-            s._twist_map.append((due, math.radians(rate_deg_s), captured))
+        s._twist_map = sorted((due, math.radians(rate_deg_s), captured) for due, rate_deg_s, captured in entries)
         return lambda t: math.degrees(s._bank_rate_target(t))
 
     # (due: when the vehicle gets there, s; rate, deg/s; capture time of the frame, s)
