@@ -1089,6 +1089,38 @@ def test_an_interrupt_between_the_parsing_and_the_command_is_one_line(monkeypatc
     assert cli._WATCH is None
 
 
+@pytest.mark.parametrize("installing", ["SIGINT", "SIGTERM"])
+def test_an_interrupt_while_the_watch_installs_its_handlers_leaves_none(monkeypatch, capsys, tmp_path, installing):
+    """The interrupt arriving just as the watch's handler for SIGINT (or then SIGTERM) went
+    in: the command ends with its one line, and the process's handlers are the ones it had
+    (a review: the watch made and installed in one step left its handler in the process,
+    where a later `main` in the same process took it for the caller's)."""
+    import signal
+
+    import fusion.cli as cli
+
+    real = signal.signal
+    inherited = real(signal.SIGINT, signal.default_int_handler), real(signal.SIGTERM, signal.SIG_DFL)
+
+    def install(sig, handler):
+        before = real(sig, handler)
+        if sig == getattr(signal, installing) and isinstance(getattr(handler, "__self__", None), cli._InterruptWatch):
+            raise KeyboardInterrupt      # as Python's handler would, the signal right then
+        return before
+
+    try:
+        monkeypatch.setattr(signal, "signal", install)
+        assert cli.main(["run", "--out", str(tmp_path / "out"), "--quiet"]) == 130
+        assert capsys.readouterr().err == "error: interrupted\n"
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+        assert cli._WATCH is None
+    finally:
+        monkeypatch.undo()
+        real(signal.SIGINT, inherited[0])
+        real(signal.SIGTERM, inherited[1])
+
+
 def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch, capsys, tmp_path):
     """Ctrl-C inside numba's compiler comes out as RuntimeError ("no compiled object yet"), in a
     vision worker as SystemError: a review got those tracebacks on 2 of 21 interrupts. Any

@@ -107,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
             # found") before the one-line error this program gives for it
             os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
         interrupted = _WATCH = _InterruptWatch(quiet=not args.debug)
+        interrupted.start()   # after the assignment: an interrupt inside it is closed in `finally`
         gc.disable()   # until the command's imports are done (settle_heap)
         status = int(args.func(args) or 0)
         if interrupted.seen:   # a library dropped the KeyboardInterrupt and the run went on
@@ -178,14 +179,22 @@ class _InterruptWatch:
         self._before = signal.getsignal(signal.SIGINT)
         self._hook = sys.unraisablehook
         self._resent: list[threading.Thread] = []
-        self._active = threading.current_thread() is threading.main_thread() and self._before is signal.default_int_handler
+        self._active = self._term = False     # the handlers this watch installed (`start`)
+
+    def start(self) -> None:
+        """Installs the handlers. Apart from the constructor, so that the caller holds the
+        watch before any handler is in place: an interrupt that arrives while they are being
+        installed (the first raises it already) leaves none behind once :meth:`close` has run
+        (a review: made in one step, an interrupt there left the handler in the process)."""
+        main = threading.current_thread() is threading.main_thread()
         # SIGTERM on its own: a command started in the background of a script has SIGINT
         # ignored and SIGTERM still default (a review found it killed outright then)
-        self._term = (threading.current_thread() is threading.main_thread()
-                      and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL)
-        if self._active:
+        term = main and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+        if main and self._before is signal.default_int_handler:
+            self._active = True         # before: restoring a handler never replaced is harmless
             signal.signal(signal.SIGINT, self._on_interrupt)
-        if self._term:
+        if term:
+            self._term = True
             signal.signal(signal.SIGTERM, self._on_interrupt)
 
     def said(self) -> int:
