@@ -588,30 +588,54 @@ def test_grade_followed_through_a_lane_loss_in_a_sag():
     assert pitch[(t >= 13.0) & (t < 15.0)].max() < 0.3
 
 
-@pytest.mark.parametrize("lookahead_m, lanes_lost_s", [(0.0, None), (12.0, (6.0, 9.0))])
-def test_late_vision_results_give_the_same_estimate(drive, lookahead_m, lanes_lost_s):
+@pytest.mark.parametrize("lookahead_m, lanes_lost_s, twists, delay_s", [
+    (0.0, None, False, 0.045), (12.0, (6.0, 9.0), False, 0.045), ("varying", (14.0, 18.3), True, 0.3)])
+def test_late_vision_results_give_the_same_estimate(drive, lookahead_m, lanes_lost_s, twists, delay_s):
     """Vision results arriving 45 ms late (processing latency) are applied at their capture
     time by rolling back and re-propagating: the estimate equals the in-time one; also with the
     rolls deferred by a 12 m lookahead and the lanes gone for 3 s (the first frame back applied
-    at capture, the twists of the next L / v too), and so do the counts of refused updates."""
-    imu, vis = drive.imu.iloc[:1500], drive.vision[drive.vision["t_s"] < 14.9]
+    at capture, the twists of the next L / v too), and so do the counts of refused updates.
+    Last, each frame with its road twist (the truth's) and a lookahead changing from frame to
+    frame (10 +- 3 m), 0.3 s late, the lanes back in a runoff: the twists land with the
+    deferred rolls and fill the bank-rate map, and the replays give the in-time answer to the
+    bit (a review had measured up to 1.6e-3 apart: its run left the last 0.3 s of results
+    unfed). With one latency for all, a step's last replay holds the frames captured up to it,
+    as the run in time does: this case does not test the map's rule of frames captured before
+    the step (results out of order do, and there the lanes' return is decided per arrival:
+    notes, eighteenth session)."""
+    n_imu = 2500 if twists else 1500
+    imu = drive.imu.iloc[:n_imu]
+    vis = drive.vision[drive.vision["t_s"] < imu["t_s"].iloc[-1] - 0.1]
     if lanes_lost_s is not None:
         vis = vis[(vis["t_s"] < lanes_lost_s[0]) | (vis["t_s"] >= lanes_lost_s[1])]
+    t = vis["t_s"].to_numpy()
+    lookahead = 10.0 + 3.0 * np.sin(t) if lookahead_m == "varying" else np.full(len(t), lookahead_m)
+    tt = drive.truth["t_s"].to_numpy()
+    bank = np.radians(np.interp(t, tt, drive.truth["bank_deg"]))
+    twist = np.gradient(bank, t) / np.interp(t, tt, drive.truth["speed_m_s"]) if twists else np.full(len(t), np.nan)
 
     def run(delay_s):
         s = FusionStream(drive.lever_arm_m, options=FusionOptions(history_s=0.5))
-        pending = list(vis.itertuples())
+        pending = list(zip(vis.itertuples(), lookahead, twist))
+
+        def add(p, lookahead_m, twist_rad_m):
+            s.add_vision(p.t_s, np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]), np.radians([0.3] * 3),
+                         True, p.curvature_1_m, p.lateral_offset_m, lookahead_m=lookahead_m,
+                         road_twist_rad_m=(twist_rad_m, 1e-4))
+
         for row in imu.itertuples():
-            while pending and pending[0].t_s + delay_s <= row.t_s:
-                p = pending.pop(0)
-                s.add_vision(p.t_s, np.radians([p.roll_deg, p.pitch_deg, p.yaw_deg]), np.radians([0.3] * 3),
-                             True, p.curvature_1_m, p.lateral_offset_m, lookahead_m=lookahead_m)
+            while pending and pending[0][0].t_s + delay_s <= row.t_s:
+                add(*pending.pop(0))
             s.add_imu(row.t_s, [row.gyro_x_rad_s, row.gyro_y_rad_s, row.gyro_z_rad_s],
                       [row.accel_x_m_s2, row.accel_y_m_s2, row.accel_z_m_s2], row.speed_m_s, row.fresh_speed)
+        for p in pending:       # the results still on their way when the IMU ends
+            add(*p)
         return s
 
-    on_time, late = run(0.0), run(0.045)
+    on_time, late = run(0.0), run(delay_s)
     assert late.counts["vision_late"] > 300
+    if twists:
+        assert on_time.counts["twist_used"] > 300 and on_time._twist_map
     np.testing.assert_allclose(late.ekf.x, on_time.ekf.x, atol=1e-9)
     np.testing.assert_allclose(late.ekf.P, on_time.ekf.P, atol=1e-12)
     # the replayed samples' refused updates are counted once (a review: 415 and 1767 refusals
