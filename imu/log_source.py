@@ -85,6 +85,11 @@ class ReadState:
     #: reader last logged a warning: the TRC reader logs a line it cannot parse and goes on.
     line: Callable[[], int] | None = None
     warning_line: int = -1
+    #: Lines a reader passed over with only an INFO log, by the type it named: the TRC reader's
+    #: "Unsupported type" (a PCAN status, error counter or error frame record, or a frame line
+    #: whose type column is garbled), and the line of the first.
+    unread_types: dict[str, int] = field(default_factory=dict)
+    first_unread_line: int = -1
 
     stop_reason: str = ""               # why the read stopped early (the first cause)
 
@@ -184,12 +189,27 @@ def _asc_frame_like(line: str) -> bool:
     return _ASC_FRAME_LIKE.search(line) is not None
 
 
+#: python-can's TRC reader's INFO for a line it passes over (its type is the one argument).
+_TRC_UNSUPPORTED = "TRCReader: Unsupported type '%s'"
+
+
 class _CountWarnings(logging.Handler):
+    """Counts the readers' warnings, and the lines the TRC reader passes over with only an INFO
+    log (a review: those were lost without a count)."""
+
     def __init__(self, state: ReadState) -> None:
-        super().__init__(logging.WARNING)
+        super().__init__(logging.INFO)
         self.state = state
 
     def emit(self, record: logging.LogRecord) -> None:
+        if record.levelno < logging.WARNING:
+            if record.msg == _TRC_UNSUPPORTED and record.args:
+                kind = str(record.args[0])[:12]
+                st = self.state
+                st.unread_types[kind] = st.unread_types.get(kind, 0) + 1
+                if st.first_unread_line < 0 and st.line is not None:
+                    st.first_unread_line = st.line()
+            return
         self.state.warnings += 1
         if self.state.line is not None:
             self.state.warning_line = self.state.line()
@@ -204,17 +224,21 @@ def _quiet_readers(state: ReadState) -> Iterator[None]:
     saved = []
     for name in ("can", "asammdf"):
         lg = logging.getLogger(name)
-        saved.append((lg, lg.propagate, list(lg.handlers)))
+        saved.append((lg, lg.propagate, list(lg.handlers), lg.level))
         lg.handlers = [handler]  # asammdf brings its own stream handler
         lg.propagate = False
+    trc = logging.getLogger("can.io.trc")
+    saved.append((trc, trc.propagate, list(trc.handlers), trc.level))
+    trc.setLevel(logging.INFO)   # its passed-over lines are INFO records (counted, not printed)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             yield
     finally:
-        for lg, prop, handlers in saved:
+        for lg, prop, handlers, level in saved:
             lg.handlers = handlers
             lg.propagate = prop
+            lg.setLevel(level)
 
 
 @contextmanager
@@ -403,6 +427,12 @@ def _check_end(feed: _Lines, header: list[str], state: ReadState) -> None:
     complete (a review)."""
     if feed.unterminated and state.warning_line == feed.line_no:
         feed.cut = True
+    if state.unread_types:
+        n = sum(state.unread_types.values())
+        state.bad_lines += n
+        kinds = ", ".join(f"'{k}' {v}" for k, v in sorted(state.unread_types.items(), key=lambda kv: -kv[1])[:5])
+        state.problem(f"line {state.first_unread_line}: {n} {state.fmt} line(s) of a record type the reader does "
+                      f"not take (status, error counter, error frame, or a garbled type column: {kinds}) skipped")
     if feed.unterminated and feed.dropped and feed.dropped[-1] == feed.line_no:
         feed.dropped.pop()     # the last line, passed over: cut off
         feed.cut = True

@@ -59,15 +59,16 @@ def test_WRONG_LENGTH_frames_counted_rest_decoded(tmp_path, clean):
     assert table["fresh_gyro_x"].all() and len(table) == len(ref)
 
 
-@pytest.mark.parametrize("suffix, counted", [(".asc", True), (".log", True), (".trc", False), (".csv", True)])
-def test_CORRUPT_LINE_MIDWAY_skipped_and_counted(tmp_path, clean, suffix, counted):
+@pytest.mark.parametrize("suffix", [".asc", ".log", ".trc", ".csv"])
+def test_CORRUPT_LINE_MIDWAY_skipped_and_counted(tmp_path, clean, suffix):
     """One garbled IMU_RATE line in the middle of a text log: that sample is lost, the reader goes on
     after it with the header state intact, and every other sample is decoded as in the clean log.
     candump and CSV lines that python-can cannot parse are counted as bad lines (naming the line),
     as are ASC lines in the form of a frame that its reader passes over (it does so without a
     word for lines it does not recognise; a review); python-can's TRC reader passes over them
-    too, so there the loss shows only as the orphaned IMU_ACC frame, counted as unaligned (as it
-    does in the others)."""
+    too, with only an INFO log of an "unsupported type" (the garbled type column), which is
+    counted the same way (before, the loss showed there only as the orphaned IMU_ACC frame,
+    counted as unaligned as it is in the others)."""
     _, _, msgs, _, _ = clean
     path = _write(msgs, tmp_path / f"x{suffix}")
     ref, _ = read_log(path, sim_mapping(), MOUNT_FRD)
@@ -77,16 +78,35 @@ def test_CORRUPT_LINE_MIDWAY_skipped_and_counted(tmp_path, clean, suffix, counte
     lines[victim] = lines[victim].replace(" ", " zz ", 2).replace("#", "#ZZ").replace(",", ",q", 1)
     path.write_text("".join(lines))
     table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
-    if counted:
-        assert summary.bad_lines == 1 and f"line {victim + 1}:" in summary.problems[0]
-    else:
-        assert summary.bad_lines == 0
+    assert summary.bad_lines == 1 and f"line {victim + 1}:" in summary.problems[0]
     assert next(s for s in summary.sources if s.name == "IMU_ACC").unaligned == 1
     assert len(table) == len(ref) - 1, "exactly the garbled sample is missing"
     merged = ref.merge(table, on="t_s", suffixes=("", "_got"))
     assert len(merged) == len(table)
     assert np.array_equal(merged["gyro_x_rad_s"], merged["gyro_x_rad_s_got"])
     assert np.array_equal(merged["accel_y_m_s2"], merged["accel_y_m_s2_got"])
+
+
+def test_TRC_STATUS_AND_ERROR_RECORDS_are_counted(tmp_path, clean):
+    """PCAN-View writes bus status (ST), error counter (EC) and error frame (ER) records between
+    the frames of a TRC log (format 2.x); python-can's reader passes over any type it does not
+    take with an INFO log only, which nothing counted (a review). Three such records mid-file:
+    counted as skipped lines, named with their types and the first one's line, and every frame
+    is read as in the clean log."""
+    _, _, msgs, _, _ = clean
+    path = _write(msgs, tmp_path / "x.trc")
+    ref, _ = read_log(path, sim_mapping(), MOUNT_FRD)
+    lines = path.read_text().splitlines(keepends=True)
+    k = [i for i, ln in enumerate(lines) if " DT " in ln][len(msgs) // 2]
+    lines[k + 1:k + 1] = ["   9001      1500.100 ST  1  Rx    00 00 00 08\n",
+                          "   9002      1500.200 ER  1  Rx    04 00 02 00 00\n",
+                          "   9003      1500.300 ST  1  Rx    00 00 00 00\n"]
+    path.write_text("".join(lines))
+    table, summary = read_log(path, sim_mapping(), MOUNT_FRD)
+    assert summary.bad_lines == 3 and summary.complete
+    said = next(p for p in summary.problems if "record type" in p)
+    assert said.startswith(f"line {k + 2}:") and "'ST' 2" in said and "'ER' 1" in said, said
+    pd.testing.assert_frame_equal(table, ref)
 
 
 @pytest.mark.parametrize("edit, problem", [
