@@ -187,6 +187,10 @@ class FusionStream:
         #: when the vehicle gets there (s), the rate (rad/s), the frame's capture time (s); sorted
         #: (so by the first: a probe ``(t, inf, inf)`` bisects after every entry due at ``t``).
         self._twist_map: list[tuple[float, float, float]] = []
+        #: Frames captured at or before this time are left out of the map: a re-acquisition of
+        #: the road states (the bank, the curvature) at it, their rates converted at the state
+        #: that had diverged (``_map_twist``; a review)
+        self._map_from = -math.inf
         self._n = 0
         #: the first IMU intervals (s): their median is the sample period that scales the
         #: accelerometer noise to the IMU's rate (fixed once known, so that replays agree; the
@@ -500,16 +504,17 @@ class FusionStream:
         reached and the next one, each the median of its patch (:meth:`_patch_rate`; with the two
         more than :data:`_TWIST_SPAN_S` apart, the next one's);
         0 within :attr:`fusion.ekf.NoiseModel.bank_rate_map_deadband_rad_s` (steady road); NaN
-        with none ahead (the rate decays as it did without the map)."""
-        entries = self._twist_map
+        with none ahead (the rate decays as it did without the map). Frames captured at or
+        before the last re-acquisition (``_map_from``) are left out."""
+        entries, since = self._twist_map, self._map_from
         n, j = len(entries), bisect.bisect_right(entries, (t, math.inf, math.inf))
         i = j - 1
         # a frame captured at t or later is not mapped yet in a run in time: a replay's
-        while j < n and entries[j][2] >= t:
+        while j < n and not since < entries[j][2] < t:
             j += 1
         if j == n:
             return math.nan
-        while i >= 0 and entries[i][2] >= t:
+        while i >= 0 and not since < entries[i][2] < t:
             i -= 1
         t1, r1 = entries[j][0], self._patch_rate(entries[j][0], t)
         if i < 0 or t1 - entries[i][0] > _TWIST_SPAN_S:
@@ -526,7 +531,8 @@ class FusionStream:
         the next patch (a review: one frame's twist 0.3 deg/m off moved the bank 2.5 deg)."""
         lo = bisect.bisect_left(self._twist_map, (due - _PATCH_S,))
         hi = bisect.bisect_right(self._twist_map, (due + _PATCH_S, math.inf, math.inf))
-        r = sorted(e[1] for e in self._twist_map[lo:hi] if e[2] < t)
+        since = self._map_from
+        r = sorted(e[1] for e in self._twist_map[lo:hi] if since < e[2] < t)
         k = len(r)
         return r[k // 2] if k % 2 else 0.5 * (r[k // 2 - 1] + r[k // 2])
 
@@ -567,6 +573,7 @@ class FusionStream:
                 predicted = vision_hx(ekf.x)[0] + ekf.x[S.BANK] - seen     # as update_roll_ahead has it
                 bank = ekf.x[S.BANK] + wrap_angle(predicted - (m.roll_rad + turned))
                 self._reset(((S.BANK, bank, n.init_bank_rad), (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s)))
+                self._map_from = m.t_s     # its due time: the rates mapped by now were at the old bank
                 self.counts["roll_ahead_reacquired"] += first
                 ekf.update_roll_ahead(m, turned)
                 self._roll_rejected_in_row = 0
@@ -650,6 +657,7 @@ class FusionStream:
             self._rejected_in_row += 1
             if self._rejected_in_row >= self.options.reacquire_after_rejections:
                 self._reacquire(angles, kappa, bank=not defer)
+                self._map_from = t      # this frame's rate too was mapped at the diverged state
                 self.counts["vision_reacquired"] += first
                 if ekf.update_vision(m, defer_roll=defer, bank_rate_ahead=rate_ahead):
                     # used after all: counted once, as used (it had counted as rejected too, used
@@ -732,14 +740,14 @@ class FusionStream:
         ekf = self.ekf
         return (self._vision_initialized, self._lane_fit, self._last_vision_t, self._roll_hole_until, self._road_rate,
                 self._rejected_in_row, self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
-                ekf._bank_rate_scheduled, float(ekf._q_scheduled[S.BANK_RATE]))
+                ekf._bank_rate_scheduled, float(ekf._q_scheduled[S.BANK_RATE]), self._map_from)
 
     def _restore(self, state: tuple) -> None:
         ekf = self.ekf
         (self._vision_initialized, self._lane_fit, self._last_vision_t, self._roll_hole_until, self._road_rate,
          self._rejected_in_row,
          self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
-         ekf._bank_rate_scheduled, ekf._q_scheduled[S.BANK_RATE]) = state
+         ekf._bank_rate_scheduled, ekf._q_scheduled[S.BANK_RATE], self._map_from) = state
 
     def _apply_late(self, item: VisionMeasurement) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it

@@ -808,9 +808,10 @@ def test_the_twist_map_interpolates_the_road_measured_by_then():
     last road patch reached and the next, only from frames captured by ``t`` (a replay of late
     results must see what the in-time run saw), each patch's median, 0 within the deadband, NaN
     with nothing ahead."""
-    def stream(entries):
+    def stream(entries, map_from=-math.inf):
         s = FusionStream(options=OPTIONS)
         s._twist_map = sorted((due, math.radians(rate_deg_s), captured) for due, rate_deg_s, captured in entries)
+        s._map_from = map_from
         return lambda t: math.degrees(s._bank_rate_target(t))
 
     # (due: when the vehicle gets there, s; rate, deg/s; capture time of the frame, s)
@@ -821,6 +822,11 @@ def test_the_twist_map_interpolates_the_road_measured_by_then():
     assert target(10.5) == pytest.approx(2.5)     # captured by now: 10.4 to 10.6
     assert target(10.65) == pytest.approx(1.5)
     assert math.isnan(target(10.8))               # nothing mapped ahead: the rate's old model
+    # the road states re-acquired at 10.0 s: the rates of the frames captured by then were
+    # converted at the state that had diverged, and are left out (a review)
+    target = stream([(10.0, -2.0, 9.4), (10.4, 5.0, 10.45), (10.6, 0.0, 9.9), (10.7, 3.0, 10.3)], map_from=10.0)
+    assert target(10.5) == pytest.approx(5.0 - 2.0 / 3.0)   # 10.4 to 10.7, not 10.4 to 10.6
+    assert target(10.35) == pytest.approx(3.0)              # 10.7's alone: 10.0's frame was before
     deadband = math.degrees(OPTIONS.noise.bank_rate_map_deadband_rad_s)
     assert 0.0 < deadband < 1.0
     target = stream([(10.0, -2.0, 9.0), (10.6, 0.0, 9.0)])
