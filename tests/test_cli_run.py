@@ -692,14 +692,24 @@ def test_the_contracts_command_line_with_a_drives_files(drive, tmp_path):
     assert not (tmp_path / "none").exists() and not (tmp_path / "none.partial").exists()
 
 
-def test_campaign_drives_given_as_links_keep_their_names(drive, tmp_path):
-    """Two links to drive folders of the same name are two drives (their link names)."""
-    for name in ("day1", "day2"):
-        (tmp_path / name).symlink_to(drive, target_is_directory=True)
+def test_campaign_drives_of_one_name_in_two_folders_are_two_drives(drive, tmp_path):
+    """A campaign's usual layout, ``day1/drive`` and ``day2/drive`` (links here, which keep
+    their own names): two drives, written to ``OUT/day1/drive`` and ``OUT/day2/drive`` (they
+    were refused as two drives of one name, a review); the same folder given twice is refused
+    before anything is written."""
+    for day in ("day1", "day2"):
+        (tmp_path / day).mkdir()
+        (tmp_path / day / "drive").symlink_to(drive, target_is_directory=True)
     out = tmp_path / "camp"
-    r = vifusion("campaign", tmp_path / "day1", tmp_path / "day2", "--out", out, "--quiet", "--no-report")
+    r = vifusion("campaign", tmp_path / "day1" / "drive", tmp_path / "day2" / "drive", "--out", out, "--quiet",
+                 "--no-report")
     assert r.returncode == 0, r.stderr
-    assert (out / "day1" / "fused.csv").is_file() and (out / "day2" / "fused.csv").is_file()
+    assert (out / "day1" / "drive" / "fused.csv").is_file() and (out / "day2" / "drive" / "fused.csv").is_file()
+    table = pd.read_csv(out / "campaign.csv")
+    assert list(table["status"]) == ["ok", "ok"]
+    one_line_error(vifusion("campaign", tmp_path / "day1" / "drive", tmp_path / "day1" / ".." / "day1" / "drive",
+                            "--out", tmp_path / "twice", "--quiet", "--no-report"), "given twice")
+    assert not (tmp_path / "twice").exists()
 
 
 def test_outputs_a_review_found_wanting(drive, tmp_path):

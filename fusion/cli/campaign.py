@@ -1,6 +1,7 @@
 """``vifusion campaign DRIVE... --out DIR``: a bank campaign, drive after drive with one IMU.
 
-Each drive is a ``vifusion run --drive`` into ``DIR/<drive name>/``, started from the IMU biases
+Each drive is a ``vifusion run --drive`` into ``DIR/<drive name>/`` (drives of one name:
+``DIR/day1/drive/``, as many parent folders as tell them apart), started from the IMU biases
 the previous good drive ended with (its ``calibration.toml``, :mod:`fusion.calibration`): at
 constant speed one curve cannot tell the lateral accelerometer bias from bank, a campaign's
 drives together can. ``DIR/campaign.csv`` (and ``.parquet``) has one row per drive: status,
@@ -60,15 +61,20 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import InputError
     from . import run as run_cmd
 
-    names = [Path(os.path.abspath(d)).name for d in args.drives]      # '.' names its folder; links keep theirs
+    names = output_names(args.drives)
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise InputError(f"two drives named {dup[0]}: their outputs would share {args.out / dup[0]}")
+        twice = next(d for d, n in zip(args.drives, names) if n == dup[0])
+        raise InputError(f"the drive {twice} is given twice: both runs would write {args.out / dup[0]}")
+    nested = [(a, b) for a in names for b in names if Path(a) in Path(b).parents]
+    if nested:    # a drive's output folder would hold another's
+        raise InputError(f"the output folder of drive {nested[0][1]} would lie in drive {nested[0][0]}'s "
+                         f"({args.out / nested[0][0]}): run them in two campaigns")
     partial = [n for n in names if n.endswith(".partial") and n[: -len(".partial")] in names]
     if partial:   # the run of drive X writes into OUT/X.partial first
         raise InputError(f"a drive named {partial[0]} beside one named {partial[0][:-len('.partial')]}: the second's "
                          "run writes into the first's output folder first")
-    clash = [n for n in names if n in ("campaign.csv", "campaign.parquet")]
+    clash = [n for n in names if Path(n).parts[0] in ("campaign.csv", "campaign.parquet")]
     if clash:   # said now, not after every drive
         raise InputError(f"a drive named {clash[0]}: its output folder would be the campaign's table")
     out_dir = args.out.resolve()
@@ -118,6 +124,25 @@ def run(args: argparse.Namespace) -> int:
         print("error: no drive of the campaign could be run", file=sys.stderr)
         return 2
     return 0
+
+
+def output_names(drives: list[Path]) -> list[str]:
+    """Each drive's output folder under ``--out``: the drive folder's name ('.' names its
+    folder; a link keeps its own name), and where drives share a name, as many of their parent
+    folders as tell them apart (``day1/drive`` and ``day2/drive``; they were refused before, a
+    campaign's usual layout). The same folder given twice keeps one name for both."""
+    paths = [Path(os.path.abspath(d)) for d in drives]
+    names = [p.name for p in paths]
+    for name in set(names):
+        group = [i for i, n in enumerate(names) if n == name]
+        if len(group) < 2:
+            continue
+        parts = [paths[i].parts[1:] for i in group]      # without the root: a name under --out
+        k = next((k for k in range(2, max(map(len, parts)) + 1) if len({q[-k:] for q in parts}) == len(parts)),
+                 1)    # none: the same folder twice, one name (refused as such)
+        for i, q in zip(group, parts):
+            names[i] = "/".join(q[-k:])
+    return names
 
 
 def _check_old_table(path: Path) -> None:
