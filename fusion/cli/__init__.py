@@ -300,6 +300,15 @@ def check_output_file(path: Path) -> None:
         raise InputError(f"{path}: cannot write in {folder} (permission denied)")
 
 
+def check_debug_video(path: Path) -> None:
+    """``--debug-video``: a container the writer knows (:meth:`vision.debug.DebugWriter.check`)
+    in a place that can be written (:func:`check_output_file`), before any work."""
+    from vision.debug import DebugWriter
+
+    DebugWriter.check(path)
+    check_output_file(path)
+
+
 def refuse_inputs_as_outputs(outputs, inputs) -> None:
     """An output path that is one of the command's input files (after links) is refused
     before any work: it would be overwritten (a review: ``vifusion can X.csv --out X.csv``

@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import check_output_file, mapped_as, refuse_inputs_as_outputs, workers_arg, write_tables
+from . import check_debug_video, mapped_as, refuse_inputs_as_outputs, workers_arg, write_tables
 
 __all__ = ["add_parser", "run"]
 
@@ -136,10 +136,7 @@ def _run(args: argparse.Namespace) -> int:
     check_out(out)
     tmp = out.with_name(out.name + ".partial")
     if args.debug_video is not None:
-        from vision.debug import DebugWriter
-
-        DebugWriter.check(args.debug_video)
-        check_output_file(args.debug_video)
+        check_debug_video(args.debug_video)
         refuse_inputs_as_outputs([args.debug_video], [files.video, files.frames, files.can_log, files.dbc, files.config,
                                                       files.truth, files.imu_truth, args.calibration])
         if out in args.debug_video.resolve().parents:

@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from . import check_output_file, mapped_as, refuse_inputs_as_outputs, workers_arg, write_table
+from . import check_debug_video, check_output_file, mapped_as, refuse_inputs_as_outputs, workers_arg, write_table
 
 
 def add_parser(sub) -> None:
@@ -47,7 +47,6 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from vision.debug import DebugWriter
     from vision.options import options_from_table
     from vision.video import count_frames, default_workers, estimate_video
 
@@ -61,8 +60,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.out}: the vision table is written as .csv or .parquet")
     check_output_file(args.out)   # said now, not after every frame
     if args.debug_video is not None:
-        DebugWriter.check(args.debug_video)
-        check_output_file(args.debug_video)
+        check_debug_video(args.debug_video)
     refuse_inputs_as_outputs([args.out, args.debug_video], [args.video, args.frames, args.config, args.can, args.dbc])
 
     cfg = load_config(args.config)
