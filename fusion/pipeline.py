@@ -66,6 +66,7 @@ def outputs_table(t_s: np.ndarray, X: np.ndarray, P: np.ndarray, rel_cov=None) -
         "roll_world_sigma_deg": deg(d[:, S.ROLL_W]), "pitch_world_sigma_deg": deg(d[:, S.PITCH_W]),
         "grade_sigma_deg": deg(d[:, S.GRADE]),
         "bank_rate_deg_s": deg(X[:, S.BANK_RATE]), "grade_rate_deg_s": deg(X[:, S.GRADE_RATE]),
+        "bank_rate_sigma_deg_s": deg(d[:, S.BANK_RATE]), "grade_rate_sigma_deg_s": deg(d[:, S.GRADE_RATE]),
         "gyro_bias_x_deg_s": deg(X[:, S.GYRO_BIAS_X]), "gyro_bias_y_deg_s": deg(X[:, S.GYRO_BIAS_Y]),
         "gyro_bias_z_deg_s": deg(X[:, S.GYRO_BIAS_Z]),
         "accel_bias_x_m_s2": X[:, S.ACCEL_BIAS][:, 0], "accel_bias_y_m_s2": X[:, S.ACCEL_BIAS][:, 1],

@@ -47,6 +47,8 @@ class ReportInputs:
     imu_calibration: dict | None = None
     #: The calibration file the run started from (``--calibration``; a campaign's carried one).
     calibration_from: str | None = None
+    #: The run's input files by kind (video, frames, can_log, dbc, config, truth), as given.
+    inputs: dict | None = None
 
 
 def _truth_covers_s(fused: pd.DataFrame, tr: pd.DataFrame, t0: float, angles, every: bool = False) -> float:
@@ -72,6 +74,7 @@ def summarise(r: ReportInputs) -> dict:
     out: dict = {"title": r.title, "smoothed": r.smoothed, "counts": r.counts, "timings_s": r.timings_s,
                  "time_offset": r.time_offset, "warnings": r.warnings,
                  "camera_time_offset_s": r.camera_time_offset_s, "calibration_from": r.calibration_from,
+                 "inputs": r.inputs,
                  # present in every summary, null where there is none (no truth, too short a truth,
                  # biases that ended non-finite): a reader need not tell a missing key from a null
                  "imu_calibration": None, "rmse_deg": None, "consistency": None}
@@ -153,16 +156,19 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
     vis = r.vision[r.vision["valid"].astype(bool)] if r.vision is not None else None
     figs: dict[str, bytes] = {}
 
+    #: the filter's estimate: forward, or smoothed (RTS) with --smooth, whose samples each saw the
+    #: whole drive (the IMU-only and IMU-minus-vision baselines stay forward filters)
+    fused = "fused (smoothed)" if r.smoothed else "fused"
     settled = tf >= CONVERGENCE_S
     if not settled.any():   # a drive shorter than the convergence: its panels scaled to all of it (they had
         settled[:] = True   # been scaled to the truth alone, the estimates off the panel, a review)
 
-    def band(ax, col, label, color) -> list:
+    def band(ax, col, label, color, unit="deg") -> list:
         """The estimate and its 2-sigma band; returns what the panel's scale is set to show
         (the band from the end of the convergence: the start's sigmas of degrees would squash
         the rest, a bank of a few degrees drawn on a scale of +-50)."""
-        y = f[f"{col}_deg"].to_numpy()
-        s = f[f"{col}_sigma_deg"].to_numpy() if f"{col}_sigma_deg" in f else None
+        y = f[f"{col}_{unit}"].to_numpy()
+        s = f[f"{col}_sigma_{unit}"].to_numpy() if f"{col}_sigma_{unit}" in f else None
         ax.plot(tf, y, color=color, lw=1.2, label=label)
         if s is None:
             return [y]
@@ -181,18 +187,19 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             ax.plot(r.plain_bank["t_s"] - t0, r.plain_bank["bank_plain_deg"], ".", ms=2.5, color="tab:purple",
                     alpha=0.6, label="IMU roll - vision roll (Damon 2018)")
             shown.append(r.plain_bank["bank_plain_deg"].to_numpy())
-        shown += band(ax, a, "fused", "tab:blue")
+        shown += band(ax, a, fused, "tab:blue")
         if truth is not None and f"{a}_deg" in truth:
             ax.plot(tf, truth[f"{a}_deg"], "k--", lw=1.0, label="truth")
             shown.append(truth[f"{a}_deg"].to_numpy())
         _scale_to(ax, shown)
     _finish(figs, "attitude.png", fig, axes, [f"{a} [deg]" for a in ("roll", "pitch", "yaw", "bank")],
-            f"{r.title}: attitude relative to the road and road bank", ncol=4)
+            f"{r.title}: attitude relative to the road and road bank" + (" (RTS smoothed)" if r.smoothed else ""),
+            ncol=4)
 
     # 2. relative to gravity
     fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
     for ax, a in zip(axes, ("roll_world", "pitch_world")):
-        shown = band(ax, a, "fused", "tab:blue")
+        shown = band(ax, a, fused, "tab:blue")
         if r.imu_only is not None:
             ax.plot(r.imu_only["t_s"] - t0, r.imu_only[f"{a}_deg"], color="tab:green", lw=1.0, label="IMU only")
             shown.append(r.imu_only[f"{a}_deg"].to_numpy())
@@ -200,8 +207,8 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             ax.plot(tf, truth[f"{a}_deg"], "k--", lw=1.0, label="truth")
             shown.append(truth[f"{a}_deg"].to_numpy())
         _scale_to(ax, shown)
-    _finish(figs, "world.png", fig, axes, ("roll_world [deg]", "pitch_world [deg]"), "attitude relative to gravity",
-            ncol=4)
+    _finish(figs, "world.png", fig, axes, ("roll_world [deg]", "pitch_world [deg]"),
+            "attitude relative to gravity" + (" (RTS smoothed)" if r.smoothed else ""), ncol=4)
 
     # 3. errors against truth with the 2-sigma envelope: every angle the truth has (a real
     # recording's reference may have the world angles only)
@@ -217,7 +224,7 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
         for ax, a in zip(axes, scored):
             e = wrap_deg(f[f"{a}_deg"].to_numpy() - truth[f"{a}_deg"].to_numpy())
             s = f[f"{a}_sigma_deg"].to_numpy()
-            ax.plot(tf, e, color="tab:blue", lw=1.0, label="fused - truth")
+            ax.plot(tf, e, color="tab:blue", lw=1.0, label=f"{fused} - truth")
             ax.fill_between(tf, -2 * s, 2 * s, color="tab:blue", alpha=0.15, lw=0, label="+-2 sigma")
             # the scale of the fused error once converged (as the RMSE is taken) and of most of its
             # band: the start's sigmas, the band's peaks in runoffs (4.5 deg of bank for an error
@@ -227,15 +234,23 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             wide = float(np.percentile(band2, 95)) if band2.size else math.nan
             _scale_to(ax, [es, -es, [wide, -wide]])
             if a in ("roll", "pitch", "yaw") and truth_v is not None:
-                ax.plot(tv - t0, wrap_deg(vis[f"{a}_deg"].to_numpy() - truth_v[f"{a}_deg"].to_numpy()), ".", ms=2,
-                        color="tab:orange", alpha=0.5, label="vision - truth")
+                ev = wrap_deg(vis[f"{a}_deg"].to_numpy() - truth_v[f"{a}_deg"].to_numpy())
+                lo, hi = ax.get_ylim()
+                off = (ev < lo) | (ev > hi)
+                label = "vision - truth"
+                if off.any():   # drawn at the edge they went over, and said (a review: 12 % of the
+                    # roll's points, the largest 2.5 deg, went off the panel without a mark)
+                    label += f" ({int(off.sum())} beyond the panel, up to {np.nanmax(np.abs(ev[off])):.2f}: at its edge)"
+                    ax.plot(tv[off] - t0, np.clip(ev[off], lo, hi), "^", ms=3, color="tab:orange", alpha=0.8)
+                    ax.set_ylim(lo, hi)
+                ax.plot(tv[~off] - t0, ev[~off], ".", ms=2, color="tab:orange", alpha=0.5, label=label)
             if a.endswith("_world") and truth_i is not None:
                 ax.plot(r.imu_only["t_s"] - t0, wrap_deg(r.imu_only[f"{a}_deg"].to_numpy() - truth_i[f"{a}_deg"].to_numpy()),
                         color="tab:green", lw=0.8, label="IMU only - truth")
             ax.set_ylabel(f"{a} error [deg]")
             ax.grid(alpha=0.3)
             ax.legend(loc="upper right", fontsize=8, ncol=3)
-        axes[0].set_title("errors against truth")
+        axes[0].set_title("errors against truth" + (" (the fused estimate RTS smoothed)" if r.smoothed else ""))
         axes[-1].set_xlabel("time [s]")
         figs["errors.png"] = _fig_to_png(fig)
         plt.close(fig)
@@ -243,22 +258,28 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
     # 4. the road: curvature and bank rate (the vision's twist at the road it was measured on)
     fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
     k, ks = f["curvature_1_m"].to_numpy(), f["curvature_sigma_1_m"].to_numpy()
-    axes[0].plot(tf, k, color="tab:blue", lw=1.2, label="fused")
-    axes[0].fill_between(tf, k - 2 * ks, k + 2 * ks, color="tab:blue", alpha=0.2, lw=0, label="fused 2-sigma")
-    axes[1].plot(tf, f["bank_rate_deg_s"], color="tab:blue", lw=1.2, label="fused")
+    axes[0].plot(tf, k, color="tab:blue", lw=1.2, label=fused)
+    axes[0].fill_between(tf, k - 2 * ks, k + 2 * ks, color="tab:blue", alpha=0.2, lw=0, label=f"{fused} 2-sigma")
+    shown_rate = band(axes[1], "bank_rate", fused, "tab:blue", unit="deg_s")
     if vis is not None and len(vis):
         tv = vis["t_s"].to_numpy() + r.camera_time_offset_s
         axes[0].plot(tv - t0, vis["curvature_1_m"], ".", ms=2.5, color="tab:orange", alpha=0.7, label="vision")
         if "road_twist_deg_per_m" in vis and np.isfinite(vis["road_twist_deg_per_m"].to_numpy()).any():
             v = np.interp(tv, f["t_s"], f["speed_m_s"])
             ahead = np.nan_to_num(vis["roll_lookahead_m"].to_numpy()) / np.maximum(v, 1.0)
-            axes[1].plot(tv + ahead - t0, v * vis["road_twist_deg_per_m"].to_numpy(), ".", ms=2.5,
+            there = tv + ahead <= f["t_s"].iloc[-1]     # the road the drive got to
+            rate_seen = (v * vis["road_twist_deg_per_m"].to_numpy())[there]
+            axes[1].plot((tv + ahead - t0)[there], rate_seen, ".", ms=2.5,
                          color="tab:orange", alpha=0.7, label="vision twist x speed, where measured")
+            shown_rate.append(rate_seen)
     if truth is not None and "curvature_1_m" in truth:
         axes[0].plot(tf, truth["curvature_1_m"], "k--", lw=1.0, label="truth")
     if r.truth is not None and "bank_deg" in r.truth:
         tt = r.truth["t_s"].to_numpy()
-        axes[1].plot(tt - t0, np.gradient(r.truth["bank_deg"].to_numpy(), tt), "k--", lw=1.0, label="truth")
+        rate_true = np.gradient(r.truth["bank_deg"].to_numpy(), tt)
+        axes[1].plot(tt - t0, rate_true, "k--", lw=1.0, label="truth")
+        shown_rate.append(rate_true)
+    _scale_to(axes[1], shown_rate, min_span=0.5)
     _finish(figs, "road.png", fig, axes, ("curvature [1/m]", "bank rate [deg/s]"),
             "the road: lane curvature and bank rate", ncol=4)
 
@@ -330,7 +351,8 @@ def _table_html(summary: dict) -> str:
                 continue
             cells = "".join(f"<td>{vals[c]:.3f}</td>" if c in vals and math.isfinite(vals[c]) else "<td></td>"
                             for c in cols)
-            rows.append(f"<tr><td>{html.escape(src)}</td>{cells}</tr>")
+            name = "fused (smoothed)" if src == "fused" and summary.get("smoothed") else src
+            rows.append(f"<tr><td>{html.escape(name)}</td>{cells}</tr>")
         rows.append("</table>")
         if none:
             rows.append(f"<p>No RMSE of {html.escape(', '.join(none))}: no value to score (no valid vision frame, "
@@ -354,6 +376,9 @@ def _table_html(summary: dict) -> str:
     rows.append("<h2>Run</h2><table>")
     rows.append("<tr><td>estimate</td><td>" + ("forward filter and RTS smoother (offline)" if summary.get("smoothed")
                                              else "forward filter") + "</td></tr>")
+    for kind, path in (summary.get("inputs") or {}).items():
+        if path:
+            rows.append(f"<tr><td>{html.escape(kind.replace('_', ' '))}</td><td>{html.escape(str(path))}</td></tr>")
     rows.append(f"<tr><td>IMU samples fused</td><td>{summary.get('samples', 0)}</td></tr>"
                 f"<tr><td>duration [s]</td><td>{summary.get('duration_s', 0.0):.2f}</td></tr>"
                 f"<tr><td>camera time offset applied [s] (added to frames.csv's times)</td>"

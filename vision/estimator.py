@@ -170,7 +170,9 @@ class VisionEstimate:
         road's there) was taken from the pose by; 0 for a frame projected onto the plane.
     lateral_offset_m : float
         Vehicle origin's offset from the midpoint between the outermost lines used, m, positive
-        to the left (the road's centre line in the simulator's two- and three-line setups).
+        to the left: with three lines on a two-lane road its centre line, with two the centre of
+        the lane between them (``n_lines`` says which; on the simulator's three-line roads the
+        frames that see two lines measure from the lane's centre, 1.75 m off the road's).
     line_spacing_m : float
         Distance between neighbouring lines used, m (mean).
     line_offsets_m : tuple of float

@@ -235,6 +235,7 @@ def _run(args: argparse.Namespace) -> int:
     pb = plain_bank(imu_only.fused, vision, offset_s, fusion_opts.max_imu_gap_s)
     table = fused.fused.copy()
     table["roll_world_imu_only_deg"] = imu_only.fused["roll_world_deg"].to_numpy()
+    table["pitch_world_imu_only_deg"] = imu_only.fused["pitch_world_deg"].to_numpy()   # the summary scores both
     table["bank_plain_deg"] = frames_to_samples(table["t_s"].to_numpy(), pb["t_s"].to_numpy(), pb["bank_plain_deg"].to_numpy(),
                                                 frame_gap_limit_s(vision["t_s"].to_numpy()))
     timings["fusion"] = time.perf_counter() - t0
@@ -256,7 +257,9 @@ def _run(args: argparse.Namespace) -> int:
         fused=fused.fused, vision=vision, imu_only=imu_only.fused, plain_bank=pb, truth=truth,
         imu_truth=imu_truth, cov=fused.cov, counts={**fused.counts, **_can_counts(summary.as_dict())},
         timings_s=timings, time_offset=time_offset, warnings=warnings, smoothed=smooth,
-        title=f"vifusion run: {files.video.name}", camera_time_offset_s=offset_s,
+        title=f"vifusion run: {files.video.parent.name}/{files.video.name}", camera_time_offset_s=offset_s,
+        inputs={k: None if v is None else str(v) for k, v in (("video", files.video), ("frames", files.frames),
+                ("can_log", files.can_log), ("dbc", files.dbc), ("config", files.config), ("truth", files.truth))},
         imu_calibration=calibration,
         calibration_from=None if args.calibration is None else str(args.calibration)), tmp / "report",
         plots=not args.no_report)
@@ -383,6 +386,7 @@ def _print_summary(out, files, frames, imu, timings, warnings, summary, time_off
                               if isinstance(v, float) and math.isfinite(v) and k != "valid_fraction")
             # a source without a value is left out ('nan' had been printed as one, a review)
             if cells:
-                print(f"RMSE vs truth [deg] {src}: {cells}")
+                name = "fused (smoothed)" if src == "fused" and summary.get("smoothed") else src
+                print(f"RMSE vs truth [deg] {name}: {cells}")
     for w in (summary or {}).get("warnings", warnings):   # the report's adds its own
         print(f"warning: {prefix}{w}", file=sys.stderr)
