@@ -54,7 +54,8 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
     assert len(vision) == 30
     fused = pd.read_csv(out / "fused.csv")
     for c in ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_world_deg", "roll_sigma_deg",
-              "bank_sigma_deg", "bank_plain_deg", "roll_world_imu_only_deg"):
+              "bank_sigma_deg", "bank_plain_deg", "roll_world_imu_only_deg", "pitch_world_imu_only_deg",
+              "bank_rate_sigma_deg_s"):
         assert c in fused.columns, c
     # one row per IMU sample (100 Hz over 2 s), no NaN in the estimates
     assert 195 <= len(fused) <= 201
@@ -68,6 +69,13 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
     counts = summary["counts"]
     assert counts["IMU samples"] == len(fused) and counts["IMU sample rate [Hz]"] == 100.0
     assert counts["CAN frames read"] >= counts["CAN frames decoded (IMU, speed)"] >= 2 * len(fused)
+    # each frame read in one row (the simulated log has extra traffic of both kinds)
+    assert counts["CAN frames of the DBC's other messages"] > 0 and counts["CAN frames of IDs not in the DBC"] > 0
+    assert counts["CAN frames read"] == sum(counts[k] for k in (
+        "CAN frames decoded (IMU, speed)", "CAN frames of the DBC's other messages", "CAN frames of IDs not in the DBC",
+        "CAN error frames")), counts
+    # the input files named, and the smoothed or forward estimate said
+    assert summary["inputs"]["video"] == str(drive / "video.mp4") and summary["smoothed"] is False
     assert (out / "calibration.toml").is_file()
     html = (out / "report" / "report.html").read_text()
     assert "data:image/png;base64" in html

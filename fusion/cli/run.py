@@ -298,8 +298,12 @@ def _can_counts(can: dict) -> dict:
     """The CAN log's totals as rows of the report's run table (the decoder's summary,
     :meth:`imu.samples.Summary.as_dict`)."""
     rate = can.get("sample_rate_hz")
+    # the read frames, each in one row (a review: "of other IDs" left out the IDs not in the DBC,
+    # and the rows did not add up to the frames read)
     return {"CAN frames read": can.get("frames_read"), "CAN frames decoded (IMU, speed)": can.get("frames_mapped"),
-            "CAN frames of other IDs": can.get("unmapped_frames"), "IMU samples": can.get("samples"),
+            "CAN frames of the DBC's other messages": can.get("unmapped_frames"),
+            "CAN frames of IDs not in the DBC": sum((can.get("unknown_ids") or {}).values()),
+            "CAN error frames": can.get("error_frames"), "IMU samples": can.get("samples"),
             "IMU sample rate [Hz]": round(rate, 1) if isinstance(rate, float) else rate}
 
 
