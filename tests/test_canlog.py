@@ -120,3 +120,26 @@ def test_bad_arguments(tmp_path, drive):
         write_can_log(tmp_path / "x.asc", bad, speed)
     with pytest.raises(ValueError, match="start_epoch_s"):
         write_can_log(tmp_path / "x.asc", imu, speed, start_epoch_s=math.nan)
+
+
+@pytest.mark.parametrize("suffix", LOG_FORMATS)
+def test_a_log_written_again_is_the_same_to_the_byte(tmp_path, drive, suffix):
+    """The same drive written again, later and through another folder (a simulation writes into
+    ``OUT.partial``), is the same file: the ASC header's ``date`` is the drive's first frame's
+    time, not the time of writing, and the TRC header names the file, not the path written to
+    (found, not fixed, since the fifteenth session); the MF4 frames' times are stored from the
+    first frame's, not from the time of writing. Left: asammdf's file-history block of the MF4
+    holds the time of saving (8 bytes of a 56-byte block), which is what it is for."""
+    import time
+
+    imu, speed = drive
+    paths = [tmp_path / d / f"drive{suffix}" for d in ("one", "two.partial")]
+    write_can_log(paths[0], imu, speed, seed=3)
+    time.sleep(1.1)            # a second later: the time of writing would show in a date
+    write_can_log(paths[1], imu, speed, seed=3)
+    a, b = (p.read_bytes() for p in paths)
+    if suffix == ".mf4":    # the file history block (##FH, 56 bytes) apart
+        i = a.index(b"##FH")
+        assert b.index(b"##FH") == i and a[i + 8:i + 16] == (56).to_bytes(8, "little")
+        a, b = a[:i] + a[i + 56:], b[:i] + b[i + 56:]
+    assert a == b

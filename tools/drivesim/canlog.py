@@ -170,6 +170,7 @@ def write_can_log(out_path, imu, speed, *, dbc_path=None, start_epoch_s=1.7e9, e
     t_first = frames[0][0]
     out_path.parent.mkdir(parents=True, exist_ok=True)
     with can.Logger(out_path) as writer:
+        _drive_header(writer, out_path, start_epoch_s + t_first)
         for t, aid, ext, payload in frames:
             writer.on_message_received(can.Message(
                 timestamp=start_epoch_s + t, arbitration_id=aid, is_extended_id=ext, data=payload,
@@ -181,6 +182,29 @@ def write_can_log(out_path, imu, speed, *, dbc_path=None, start_epoch_s=1.7e9, e
             first = next(iter(reader))
         offset = first.timestamp - t_first
     return float(offset) + 0.0  # no -0.0 when the first frame is at drive time 0
+
+
+def _drive_header(writer: Any, out_path: Path, first_epoch_s: float) -> None:
+    """The header fields python-can's writers take from the machine, taken from the drive: the
+    ASC ``date`` line (the time of writing) as the first frame's time, as its ``Begin
+    Triggerblock`` line has it; the TRC file name (the absolute path written to, a simulation's
+    ``.partial`` folder) as the file's name; the MF4 start time (the time of writing, which the
+    frames' times are stored relative to) as the first frame's. A simulated drive is then the
+    same to the byte when simulated again on the same machine."""
+    if isinstance(writer, can.ASCWriter):        # its three header lines are written, nothing else yet
+        from datetime import datetime
+
+        date = writer._format_header_datetime(datetime.fromtimestamp(first_epoch_s))
+        writer.file.seek(0)
+        writer.file.truncate()
+        writer.file.write(f"date {date}\nbase hex  timestamps absolute\ninternal events logged\n")
+    elif isinstance(writer, can.TRCWriter):      # its header is written with the first frame
+        writer.filepath = out_path.name
+    elif isinstance(writer, can.MF4Writer):      # its start time, which the frames' times count from
+        from datetime import datetime
+
+        writer._mdf.header.start_time = datetime.fromtimestamp(first_epoch_s)
+        writer.last_timestamp = writer._start_time = first_epoch_s
 
 
 def _encode(msg: Any, values: dict[str, float]) -> bytes:
