@@ -50,6 +50,9 @@ class DriveFiles:
 def find_drive_files(root: str | Path) -> DriveFiles:
     """The files of a drive folder written by ``vifusion simulate`` (or laid out like one)."""
     root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise InputError(f"{root}: is a file, not a drive folder (--drive takes the folder 'vifusion simulate' "
+                         "writes; a single file goes with --video, --can, ...)")
     if not root.is_dir():
         raise InputError(f"{root}: no such drive folder")
     if root.name.endswith(".partial") and (root / "imu_truth.csv").is_file():
@@ -63,6 +66,12 @@ def find_drive_files(root: str | Path) -> DriveFiles:
         raise InputError(f"{root}: no video.mp4, video.avi or video/ folder")
     if not logs:
         raise InputError(f"{root}: no can.<asc|blf|log|trc|csv|mf4>[.gz] log")
+    # more than one of either: which is the drive's is not for the program to guess (a review:
+    # can.asc was taken beside can.blf without a word)
+    for found, what, option in ((videos, "videos", "--video"), (logs, "CAN logs", "--can")):
+        if len(found) > 1:
+            raise InputError(f"{root}: {len(found)} {what} ({', '.join(p.name for p in found)}): give the one to use "
+                             f"with {option} and the other files with --frames, --config ...")
 
     def opt(name):
         p = root / name
@@ -71,6 +80,11 @@ def find_drive_files(root: str | Path) -> DriveFiles:
     return DriveFiles(video=videos[0], can_log=logs[0], config=root / "config.toml", frames=opt("frames.csv"),
                       truth=opt("truth.csv"), truth_frames=opt("truth_frames.csv"),
                       imu_truth=opt("imu_truth.csv")).check()
+
+
+#: The largest frame number frames.csv may give: a year of video at 1000 frames/s, far under
+#: the 2^63 at which the conversion to integers wraps.
+MAX_FRAME = 1e12
 
 
 def read_frame_times(frames_csv: Path | None, timing: VideoTiming, n_frames: int | None = None) -> pd.DataFrame:
@@ -102,6 +116,10 @@ def read_frame_times(frames_csv: Path | None, timing: VideoTiming, n_frames: int
         raise InputError(f"{frames_csv}: row {i + 2} has a non-numeric frame or t_s")
     if np.any(frame != np.round(frame)) or np.any(frame < 0):
         raise InputError(f"{frames_csv}: frame numbers must be integers >= 0")
+    if np.any(frame > MAX_FRAME):   # as a 64-bit integer it wrapped to a negative one (a review)
+        i = int(np.flatnonzero(frame > MAX_FRAME)[0])
+        raise InputError(f"{frames_csv}: row {i + 2}: frame number {frame[i]:.0f} is beyond any video's "
+                         f"(at most {MAX_FRAME:.0e})")
     if np.any(np.diff(t) <= 0):
         i = int(np.flatnonzero(np.diff(t) <= 0)[0])
         raise InputError(f"{frames_csv}: t_s does not increase at row {i + 3} ({float(t[i])!r} then {float(t[i + 1])!r})")

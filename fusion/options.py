@@ -44,12 +44,13 @@ class RunSettings:
 # The upper limits are far beyond any vehicle's (they keep a typo such as 1e300 from overflowing
 # the filter's covariance into NaN estimates, which a review found written as valid); a time
 # constant divides, so it cannot be 0, nor can the sigma of a state (its covariance would be
-# singular: the no-pitch-gyro pitch rate).
+# singular: the no-pitch-gyro pitch rate), nor the wheel speed's noise (with the longitudinal
+# jerk at 0 as well, the speed update divided by 0: a review's traceback).
 _NOISE_KEYS = {
     "gyro_noise_deg_s": ("gyro_noise_rad_s", math.radians, 0.0, 100.0),
     "gyro_bias_walk_deg_s_sqrt_s": ("gyro_bias_walk_rad_s_sqrt_s", math.radians, 0.0, 10.0),
     "accel_bias_walk_m_s2_sqrt_s": ("accel_bias_walk_m_s2_sqrt_s", float, 0.0, 10.0),
-    "speed_noise_m_s": ("speed_meas_m_s", float, 0.0, 100.0),
+    "speed_noise_m_s": ("speed_meas_m_s", float, 1e-4, 100.0),
     "attitude_walk_deg_sqrt_s": ("attitude_walk_rad_sqrt_s", math.radians, 0.0, 100.0),
     "no_pitch_rate_sigma_deg_s": ("no_pitch_rate_sigma_rad_s", math.radians, 1e-3, 100.0),
     "no_pitch_rate_tau_s": ("no_pitch_rate_tau_s", float, 0.01, 10.0),

@@ -306,11 +306,14 @@ def test_video_longer_than_frames_csv_is_a_warning(copy, tmp_path):
     assert r.returncode == 0 and not any("not processed" in w for w in summary["warnings"]), summary["warnings"]
 
 
-@pytest.mark.parametrize("column, words", [("t_s", "t_s does not increase"), ("frame", "frame numbers must increase")])
-def test_frames_csv_not_increasing(copy, tmp_path, column, words):
-    """A time going back, or a frame listed twice."""
-    frames = pd.read_csv(copy / "frames.csv")
-    frames.loc[5, column] = frames.loc[4, column]
+@pytest.mark.parametrize("column, words, value", [("t_s", "t_s does not increase", None),
+                                                   ("frame", "frame numbers must increase", None),
+                                                   ("frame", "row 7: frame number 99999999999999991611392 is beyond", 1e23)])
+def test_frames_csv_not_increasing(copy, tmp_path, column, words, value):
+    """A time going back, or a frame listed twice; a frame number beyond any video's (it wrapped
+    to a negative integer and the run went on with nonsense warnings, a review)."""
+    frames = pd.read_csv(copy / "frames.csv").astype({"frame": float})
+    frames.loc[5, column] = frames.loc[4, column] if value is None else value
     frames.to_csv(copy / "frames.csv", index=False, float_format="%.6f")
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "frames.csv", words)
 
@@ -505,6 +508,18 @@ def test_frame_times_that_disagree_with_their_numbers_are_said(copy, tmp_path):
     tiny.to_csv(copy / "frames.csv", index=False, float_format="%.12f")
     r = vifusion("run", "--drive", copy, "--out", tmp_path / "b", "--no-report", "--workers", "1", "--quiet")
     assert r.returncode == 0 and "is not the video's" in r.stderr, r.stderr
+
+
+def test_a_wheel_speed_without_noise_is_a_config_error():
+    """``speed_noise_m_s = 0`` with ``longitudinal_jerk_m_s3 = 0`` divided by zero in the speed
+    update (a review's traceback): a measurement's noise may not be 0."""
+    from fusion.errors import ConfigError
+    from fusion.options import fusion_options_from_table
+
+    with pytest.raises(ConfigError, match="speed_noise_m_s"):
+        fusion_options_from_table({"speed_noise_m_s": 0.0, "longitudinal_jerk_m_s3": 0.0})
+    opts, _ = fusion_options_from_table({"speed_noise_m_s": 1e-3, "longitudinal_jerk_m_s3": 0.0})
+    assert opts.noise.speed_meas_m_s == 1e-3
 
 
 def test_a_table_given_as_a_value_is_a_config_error(tmp_path):
@@ -1272,3 +1287,39 @@ def test_sigterm_ends_the_run_and_its_vision_workers_at_once(tmp_path):
 
     assert len(workers) >= 2 and not any(running(w) for w in workers), workers
     assert not out.exists() and not out.with_name("out.partial").exists()
+
+
+@pytest.mark.parametrize("where", ["video", "out", "debug-video"])
+def test_a_file_name_that_is_not_utf8_is_one_line(drive, tmp_path, where):
+    """A file name with a byte that is not UTF-8 (0xfc, Latin-1's u-umlaut, as an old archive
+    may have it): OpenCV's reader and writer crashed the process with a segmentation fault
+    (exit 139, no message) and pyarrow raised UnicodeEncodeError (a review). Said before any
+    work, in one line with the name as it can be shown; nothing written."""
+    import os
+
+    odd = os.fsdecode(b"x_\xfc")
+    video = drive / "video.mp4"
+    if where == "video":
+        video = tmp_path / f"{odd}.mp4"
+        shutil.copy(drive / "video.mp4", video)
+    out = tmp_path / (odd if where == "out" else "out")
+    extra = ["--debug-video", tmp_path / f"{odd}.mp4"] if where == "debug-video" else []
+    r = vifusion("run", "--video", video, "--frames", drive / "frames.csv", "--can", next(drive.glob("can.*")),
+                 "--config", drive / "config.toml", "--out", out, "--quiet", *extra)
+    one_line_error(r, "x_\\xfc", "not UTF-8")
+    assert not out.exists() and not out.with_name(out.name + ".partial").exists()
+
+
+def test_a_drive_folder_that_does_not_say_which_log_is_one_line(copy, tmp_path):
+    """A drive folder holding two CAN logs (can.asc beside a can.blf of another day): the run
+    took can.asc without a word (a review); now it says which it found and how to choose. A
+    file given as --drive is said to be a file (it was "no such drive folder")."""
+    import can as pycan
+
+    with pycan.Logger(copy / "can.blf") as w:
+        for m in list(pycan.LogReader(copy / "can.asc"))[:20]:
+            w.on_message_received(m)
+    one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "2 CAN logs", "can.asc, can.blf",
+                   "--can")
+    one_line_error(vifusion("run", "--drive", copy / "can.asc", "--out", tmp_path / "out"), "is a file, not a drive folder")
+    assert not (tmp_path / "out").exists()

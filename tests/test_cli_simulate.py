@@ -171,6 +171,7 @@ def test_bad_scenario_is_one_line_naming_the_key(tmp_path, edit, key):
     ("manoeuvre", "shift_m = 1e6", "shift_m"),
     ("manoeuvre", "repeat = 100000\nperiod_m = 10", "repeat"),              # did not finish
     ("manoeuvre", "shift_m = 10.5\nrepeat = 12\nperiod_m = 21", "manoeuvre"), # 92.7 m, adding up
+    ("scenario", "seed = 18446744073709551615", "seed"),                    # 2^64 - 1: the renderer's traceback
 ])
 def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
     """Checked when the scenario is read, each a one-line error naming its key."""
@@ -181,6 +182,8 @@ def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
     src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
     if table == "segment":
         bad = src.replace("curvature_1_m = -0.005", edit, 1)
+    elif table == "scenario":
+        bad = src.replace("seed = 5\n", edit + "\n", 1)
     elif table == "manoeuvre":
         bad = src + '\n[[motion.manoeuvre]]\nkind = "lane_change"\nstart_m = 10\nlength_m = 20\n' + edit + "\n"
     elif f"[{table}]\n" in src:

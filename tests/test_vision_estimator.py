@@ -333,6 +333,12 @@ def test_options_from_the_vision_table():
     for table in ({"x_max_m": 1e9}, {"x_max_m": "inf"}, {"x_min_m": -1.0}, {"x_min_m": 30.0, "x_max_m": 20.0}):
         with pytest.raises(VisionError, match=r"c.toml: \[vision\] x_m(in|ax)_m"):
             options_from_table(table, "c.toml")
+    # each within its range, together a grid of 40,000 x 30,000 cells: 7.3 GB and 36 s a frame,
+    # or a MemoryError traceback (a review); said when the estimator is made
+    fine = options_from_table({"x_min_m": 0.1, "x_max_m": 200.0, "dx_m": 0.005, "dy_m": 0.002, "half_width_m": 30.0},
+                              "c.toml")
+    with pytest.raises(VisionError, match=r"BEV grid of \d+ x \d+ cells .* coarsen \[vision\] dx_m / dy_m"):
+        Estimator(CAM, MOUNT, RoadMarkings(3.5, 0.15, True), fine)
 
 
 def test_vertical_curve_response_predicts_the_pitch_error():

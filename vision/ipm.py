@@ -37,6 +37,11 @@ from .errors import VisionError
 __all__ = ["BevGrid", "Bev", "RoadTwist", "ground_from_rays", "rays_from_pixels", "pixels_from_rays"]
 
 
+#: The largest bird's-eye grid, cells: 28 times the default HD grid's (about 360,000), some
+#: 40 MB per image plane.
+MAX_BEV_CELLS = 10_000_000
+
+
 @dataclass(frozen=True)
 class BevGrid:
     """Metric region of interest and pixel size of the BEV.
@@ -65,6 +70,13 @@ class BevGrid:
                               "and the camera's view)")
         if not (self.dx_m > 0 and self.dy_m > 0):
             raise VisionError(f"BEV pixel size must be > 0, got dx={self.dx_m} m, dy={self.dy_m} m")
+        if self.height * self.width > MAX_BEV_CELLS:
+            # a review's [vision] options, each within its range, made a grid of 1.2e9 cells:
+            # 7.3 GB and 36 s a frame, or a MemoryError traceback under a memory limit
+            raise VisionError(f"BEV grid of {self.height} x {self.width} cells (x [{self.x_min_m:g}, {self.x_max_m:g}] m "
+                              f"by {self.dx_m:g}, y [{self.y_min_m:g}, {self.y_max_m:g}] m by {self.dy_m:g}) is over "
+                              f"{MAX_BEV_CELLS:.0e}: coarsen [vision] dx_m / dy_m or narrow x_min_m, x_max_m, "
+                              "half_width_m")
 
     @property
     def width(self) -> int:

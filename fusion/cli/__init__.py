@@ -102,6 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         parser = build_parser()
         argv = sys.argv[1:] if argv is None else argv
         args = parser.parse_args(argv)
+        _check_path_names(args)
         if not args.debug:
             # FFmpeg inside OpenCV prints its own line for a video it cannot open ("moov atom not
             # found") before the one-line error this program gives for it
@@ -139,6 +140,23 @@ def main(argv: list[str] | None = None) -> int:
         if interrupted is not None:
             interrupted.close()
         _WATCH = None
+
+
+def _check_path_names(args: argparse.Namespace) -> None:
+    """Every file or folder named on the command line has a name that is UTF-8: OpenCV's
+    video reader and writer crashed the process on one that is not (a segmentation fault, no
+    message; a review, a name with the byte 0xfc), and pyarrow and the HTML report raised on it."""
+    from ..errors import InputError
+
+    for value in vars(args).values():
+        for p in value if isinstance(value, list) else [value]:
+            if isinstance(p, Path):
+                try:
+                    str(p).encode("utf-8")
+                except UnicodeEncodeError:
+                    shown = os.fsencode(p).decode("utf-8", "backslashreplace")
+                    raise InputError(f"{shown}: the name is not UTF-8 (the video and table libraries cannot "
+                                     "open it): rename it") from None
 
 
 def settle_heap() -> None:

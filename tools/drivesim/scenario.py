@@ -157,7 +157,8 @@ def parse_scenario(data: dict, source: str) -> Scenario:
     sc = table("scenario")
     name = sc.get("name", "str", Path(source).stem)
     duration = sc.get("duration_s", "float", min=0.1, max=3600.0)
-    seed = sc.get("seed", "int", 0, min=0)     # numpy's generators take no negative seed
+    # numpy's generators take no negative seed, the renderer's compiled code none of 2^63 or more
+    seed = sc.get("seed", "int", 0, min=0, max=2**63 - 1)
     vehicle = sc.get("vehicle", "str", "motorcycle", choices=("motorcycle", "car"))
     description = sc.get("description", "str", "")
     sc.done()
