@@ -915,10 +915,13 @@ def test_a_truth_that_does_not_cover_the_scored_drive_is_said(tmp_path):
         assert summary["consistency"] is None
 
 
-def test_no_debug_video_is_left_when_the_frames_end_in_an_error(copy, tmp_path):
+@pytest.mark.parametrize("bad", ["not a picture", "cut", "dangling"])
+def test_no_debug_video_is_left_when_the_frames_end_in_an_error(copy, tmp_path, bad):
     """The drive's video as a folder of pictures, the tenth unreadable: the run stops with one
     line, and the debug video is not left under its name with the nine frames before (a review
-    found it renamed to look complete)."""
+    found it renamed to look complete). The tenth is text, a PNG cut in half (libpng printed
+    its own "Read Error" line before the program's, a review) or a link to nothing (OpenCV's
+    "findDecoder" warning)."""
     import cv2
 
     from vision.video import FrameSource
@@ -928,7 +931,14 @@ def test_no_debug_video_is_left_when_the_frames_end_in_an_error(copy, tmp_path):
     for k, img in enumerate(FrameSource(copy / "video.mp4")):
         cv2.imwrite(str(folder / f"{k:06d}.png"), img)
     (copy / "video.mp4").unlink()
-    (folder / "000009.png").write_bytes(b"not a picture")
+    tenth = folder / "000009.png"
+    if bad == "not a picture":
+        tenth.write_bytes(b"not a picture")
+    elif bad == "cut":
+        tenth.write_bytes(tenth.read_bytes()[: tenth.stat().st_size // 2])
+    else:
+        tenth.unlink()
+        tenth.symlink_to(folder / "nowhere.png")
     dbg = tmp_path / "debug.mp4"
     r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--debug-video", dbg, "--quiet", "--no-report")
     one_line_error(r, "000009.png")

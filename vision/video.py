@@ -11,6 +11,7 @@ import contextlib
 import itertools
 import math
 import os
+import tempfile
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, NamedTuple
 
@@ -343,6 +344,32 @@ def piece_count(n_frames: int, fps: float, warm_up: int) -> int:
     return max(1, min(by_length, n_frames // (warm_up + _MIN_PIECE)))
 
 
+def _read_picture(path: Path) -> np.ndarray:
+    """One picture of a frames folder, or :class:`VisionError` saying why not. What the
+    decoders print for a picture they cannot read goes with it (a review: libpng's "Read
+    Error" and OpenCV's "findDecoder" line came before the program's one-line error); what
+    they print for one they read is passed on."""
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as e:
+        raise VisionError(f"{path}: not a readable picture ({e.strerror or e})") from None
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as said:
+        os.dup2(said.fileno(), 2)          # the C libraries' own lines on stderr, for now
+        try:
+            img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        if img is None:
+            raise VisionError(f"{path}: not a readable picture")
+        said.seek(0)
+        text = said.read()
+    if text:
+        os.write(2, text)
+    return img
+
+
 def _frames_from(src: FrameSource, start: int, luma: bool = False) -> Iterator[tuple[int, np.ndarray]]:
     """``(index, image)`` from frame ``start`` on. A video is positioned with a seek, checked:
     when the container cannot seek to the frame exactly, the frames before it are decoded and
@@ -352,10 +379,7 @@ def _frames_from(src: FrameSource, start: int, luma: bool = False) -> Iterator[t
             f = src.files[i]
             if f is None:
                 continue          # a numbered picture missing: that frame is missing
-            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
-            if img is None:
-                raise VisionError(f"{f}: not a readable picture")
-            yield i, img
+            yield i, _read_picture(f)
         return
     if luma:
         frames = _luma_frames(src.path, start)
