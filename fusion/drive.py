@@ -158,8 +158,12 @@ def read_truth(path: Path | None, columns: tuple[str, ...] = TRUTH_COLUMNS) -> p
     if len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         raise InputError(f"{path}: t_s must hold two or more finite, increasing times")
     for c in have:
-        if np.any(np.isinf(df[c].to_numpy(dtype=float))):
+        v = df[c].to_numpy(dtype=float)
+        if np.any(np.isinf(v)):
             raise InputError(f"{path}: truth column {c} holds infinite values")
+        if c.endswith("_deg") and np.any(np.abs(v) > 360.0):   # 1e308 was scored: an RMSE of 109 deg (a review)
+            i = int(np.flatnonzero(np.abs(v) > 360.0)[0])
+            raise InputError(f"{path}: truth column {c} holds {v[i]:g} at row {i + 2}: not an angle in degrees")
     empty = [c for c in have if not df[c].notna().any()]   # a reference without that angle: not scored
     if have and len(empty) == len(have):
         raise InputError(f"{path}: no truth column has a value ({', '.join(have)} are empty)")

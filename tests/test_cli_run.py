@@ -1333,3 +1333,17 @@ def test_a_drive_folder_that_does_not_say_which_log_is_one_line(copy, tmp_path):
                    "--can")
     one_line_error(vifusion("run", "--drive", copy / "can.asc", "--out", tmp_path / "out"), "is a file, not a drive folder")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_truth_angle_beyond_a_turn_is_one_line(tmp_path):
+    """A truth roll of 1e308 deg (a corrupt cell) was scored: an RMSE of 109 deg (a review). An
+    angle column beyond +-360 deg is not an angle in degrees: said with its row."""
+    from fusion.drive import read_truth
+    from fusion.errors import InputError
+
+    truth = pd.read_csv(SAMPLE_DRIVE / "truth.csv")
+    truth.loc[40, "roll_deg"] = 1e308
+    truth.to_csv(tmp_path / "truth.csv", index=False)
+    with pytest.raises(InputError, match=r"truth column roll_deg holds 1e\+308 at row 42: not an angle in degrees"):
+        read_truth(tmp_path / "truth.csv")
+    assert read_truth(SAMPLE_DRIVE / "truth.csv") is not None
