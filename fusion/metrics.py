@@ -84,7 +84,8 @@ def consistency(fused: pd.DataFrame, truth: pd.DataFrame, cov: np.ndarray | None
     the angles were independent."""
     t = fused["t_s"].to_numpy(dtype=float)
     tr = interp_truth(truth, t)
-    m = (t >= t_min_s) & np.all([np.isfinite(tr[f"{a}_deg"].to_numpy()) for a in angles], axis=0)
+    m = (t >= t_min_s) & np.all([np.isfinite(tr[f"{a}_deg"].to_numpy()) & np.isfinite(fused[f"{a}_deg"].to_numpy())
+                                 for a in angles], axis=0)      # (no bank before the first wheel speed)
     e = np.radians(np.stack([fused[f"{a}_deg"].to_numpy(dtype=float) - tr[f"{a}_deg"].to_numpy()
                              for a in angles], axis=1))[m]
     e = wrap_angle(e)

@@ -81,6 +81,11 @@ def outputs_table(t_s: np.ndarray, X: np.ndarray, P: np.ndarray, rel_cov=None) -
     return pd.DataFrame(out)
 
 
+#: The fused table's columns that rest on the gravity reference, NaN before the first wheel speed.
+GRAVITY_COLUMNS = ("bank_deg", "bank_sigma_deg", "roll_world_deg", "roll_world_sigma_deg", "pitch_world_deg",
+                   "pitch_world_sigma_deg", "grade_deg", "grade_sigma_deg")
+
+
 def vision_inputs(vision: pd.DataFrame) -> pd.DataFrame:
     """Check the vision table and return it sorted by time with the columns the filter reads."""
     need = ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "valid")
@@ -182,7 +187,10 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     if not has_pitch_rate:
         # no pitch gyro, no bias of it: that state is the pitch rate q = r tan(roll) leaves out
         table["gyro_bias_y_deg_s"] = table["gyro_bias_y_sigma_deg_s"] = np.nan
-    table.loc[~speed_known, "speed_m_s"] = np.nan   # before the first wheel speed the state is a placeholder
+    # before the first wheel speed the speed state is a placeholder and the gravity reference
+    # waits for it (its centripetal term): the angles relative to gravity and the road's are not
+    # known yet, as FusionStream.estimate() says with NaN (they had numbers here, a review)
+    table.loc[~speed_known, ["speed_m_s", *GRAVITY_COLUMNS]] = np.nan
     counts = dict(stream.counts)
     counts["imu_invalid"] += int(bad.sum())     # skipped here, before the stream (no output row)
     counts["vision_after_last_imu"] = int(len(vt) - j)

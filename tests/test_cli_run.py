@@ -57,9 +57,15 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
               "bank_sigma_deg", "bank_plain_deg", "roll_world_imu_only_deg", "pitch_world_imu_only_deg",
               "bank_rate_sigma_deg_s"):
         assert c in fused.columns, c
-    # one row per IMU sample (100 Hz over 2 s), no NaN in the estimates
+    # one row per IMU sample (100 Hz over 2 s), no NaN in the estimates: none in the angles
+    # relative to the road, none in those relative to gravity from the first wheel speed on and
+    # all of them before it (the gravity reference waits for the speed, as the live estimate says)
     assert 195 <= len(fused) <= 201
-    assert np.isfinite(fused[["roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_sigma_deg"]].to_numpy()).all()
+    assert np.isfinite(fused[["roll_deg", "pitch_deg", "yaw_deg", "roll_sigma_deg"]].to_numpy()).all()
+    known = np.isfinite(fused["speed_m_s"].to_numpy())
+    assert known.mean() > 0.95 and not known[0] and np.all(np.diff(known.astype(int)) >= 0)
+    gravity = fused[["bank_deg", "bank_sigma_deg", "roll_world_deg", "pitch_world_deg", "grade_deg"]].to_numpy()
+    assert np.isfinite(gravity[known]).all() and np.isnan(gravity[~known]).all()
     summary = json.loads((out / "report" / "summary.json").read_text())
     # a 2 s drive leaves nothing to score after the 2 s of convergence: no RMSE, and it says so
     assert summary["rmse_deg"] is None and any("no RMSE against truth" in w for w in summary["warnings"])

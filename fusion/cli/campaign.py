@@ -236,9 +236,11 @@ def _drive_row(fused, out: Path) -> dict:
     import numpy as np
 
     bank = fused["bank_deg"].to_numpy()
+    known = np.isfinite(bank)        # none before the first wheel speed
     row = {"duration_s": float(fused["t_s"].iloc[-1] - fused["t_s"].iloc[0]),
-           "bank_mean_deg": float(np.mean(bank)), "bank_abs_max_deg": float(np.max(np.abs(bank))),
-           "bank_sigma_median_deg": float(np.median(fused["bank_sigma_deg"]))}
+           "bank_mean_deg": float(np.mean(bank[known])) if known.any() else math.nan,
+           "bank_abs_max_deg": float(np.max(np.abs(bank[known]))) if known.any() else math.nan,
+           "bank_sigma_median_deg": float(np.median(fused["bank_sigma_deg"].to_numpy()[known])) if known.any() else math.nan}
     summary = out / "report" / "summary.json"
     if summary.is_file():
         data = json.loads(summary.read_text())
