@@ -48,6 +48,11 @@ _PATCH_S = 0.05
 _time_of = attrgetter("t_s")
 #: IMU intervals whose median is taken as the sample period (the accelerometer noise's rate).
 _PERIOD_SAMPLES = 20
+#: The largest angle relative to the road a vision result may give, rad: a vehicle that follows
+#: its lanes is within a quarter turn of the road in roll, pitch and yaw (a motorcycle's lean
+#: less the bank stays under 65 deg); beyond it the numbers are not angles in radians.
+MAX_VISION_ANGLE_RAD = math.pi / 2
+
 #: A vision result dated further ahead of the newest IMU sample (and of history_s) is a clock
 #: mix-up, not a result the IMU has yet to reach, s.
 _MAX_VISION_LEAD_S = 1.0
@@ -211,7 +216,7 @@ class FusionStream:
         self._vision_times: deque[float] = deque()   # capture times of recent results (duplicates)
         self._initial_state = self._snapshot()        # what restart() returns the flags to
         self.counts = dict(imu=0, imu_invalid=0, imu_gaps=0, vision_used=0, vision_rejected=0, vision_invalid=0,
-                           vision_late=0, vision_too_old=0, vision_duplicate=0, vision_future=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
+                           vision_late=0, vision_too_old=0, vision_duplicate=0, vision_future=0, vision_implausible=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
                            roll_ahead_reacquired=0, twist_used=0, twist_rejected=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0)
 
     # ---- inputs ----
@@ -282,6 +287,12 @@ class FusionStream:
         sig = np.asarray(sigmas_rad, dtype=float)
         if not valid or not (_all_finite(angles) and _all_finite(sig)):
             self.counts["vision_invalid"] += 1
+            return
+        if np.any(np.abs(angles) > MAX_VISION_ANGLE_RAD) or np.any(sig <= 0.0):
+            # degrees handed in as radians (8 deg of roll as 458), a sigma of 0 or below: numbers,
+            # not a measurement (a review took the bank to -462 deg through 11 re-acquisitions)
+            self.counts["vision_invalid"] += 1
+            self.counts["vision_implausible"] += 1
             return
         tw = tuple(float(g) if math.isfinite(g) else 0.0 for g in twist_m)
         t_s = float(t_s)

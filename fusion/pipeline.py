@@ -81,6 +81,12 @@ def outputs_table(t_s: np.ndarray, X: np.ndarray, P: np.ndarray, rel_cov=None) -
     return pd.DataFrame(out)
 
 
+def implausible_vision_warning(n: int) -> str:
+    """The line for ``n`` vision results refused for their numbers (``vision_implausible``)."""
+    return (f"{n} vision result(s) refused: an angle beyond +-90 deg relative to the road or a sigma of 0 or below "
+            "(degrees handed in as radians?)")
+
+
 #: The fused table's columns that rest on the gravity reference, NaN before the first wheel speed.
 GRAVITY_COLUMNS = ("bank_deg", "bank_sigma_deg", "roll_world_deg", "roll_world_sigma_deg", "pitch_world_deg",
                    "pitch_world_sigma_deg", "grade_deg", "grade_sigma_deg")
@@ -194,6 +200,8 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     counts = dict(stream.counts)
     counts["imu_invalid"] += int(bad.sum())     # skipped here, before the stream (no output row)
     counts["vision_after_last_imu"] = int(len(vt) - j)
+    if counts["vision_implausible"]:
+        warnings.append(implausible_vision_warning(counts["vision_implausible"]))
     if counts["imu_gaps"]:
         warnings.append(f"the IMU samples have {counts['imu_gaps']} gap(s) longer than {options.max_imu_gap_s:g} s: "
                         "the filter started again after each, keeping the IMU biases")

@@ -48,7 +48,7 @@ from .config import DriveConfig, load_config
 from .engine import Estimate, FusionStream
 from .errors import ConfigError
 from .options import fusion_options_from_table
-from .pipeline import last_speed
+from .pipeline import implausible_vision_warning, last_speed
 
 __all__ = ["LiveFusion"]
 
@@ -218,6 +218,7 @@ class LiveFusion:
             # not this result's age (a camera that starts first is no clock fault)
             old = self.stream.counts["vision_too_old"] if math.isfinite(self.stream.t_s) else math.inf
             future = self.stream.counts["vision_future"]
+            implausible = self.stream.counts["vision_implausible"]
             self.stream.add_vision(t_cap, est.rpy_rad,
                                    (est.roll_sigma_rad, est.pitch_sigma_rad, est.yaw_sigma_rad), est.valid,
                                    est.curvature_1_m, est.lateral_offset_m,
@@ -226,6 +227,9 @@ class LiveFusion:
                                    (est.road_twist_rad_m, est.road_twist_sigma_rad_m), est.twist_response,
                                    (est.vertical_curvature_1_m, est.pitch_per_vertical_curvature_m),
                                    est.yaw_per_curvature_m)
+            if self.stream.counts["vision_implausible"] > implausible and not implausible:
+                # said once, when the first comes (counted in stream.counts['vision_implausible'])
+                self.warnings.append(implausible_vision_warning(1) + ": stream.counts['vision_implausible'] counts them")
             if self.stream.counts["vision_future"] > future:
                 # results of another thread or process stamped ahead of the bus were dropped
                 # without a word (push_frame said it for its own frames, a review)

@@ -445,6 +445,28 @@ def test_results_pushed_ahead_of_the_bus_are_said(sample_offline):
     assert len(hits) == 1 and hits[0].startswith("30 frames in a row"), live.warnings
 
 
+def test_results_in_degrees_are_refused_and_said_once(sample_offline):
+    """``push_vision`` with a result whose roll is in degrees (8 deg given as 8 rad would be
+    458 deg), or whose sigma is 0: refused, counted (``vision_implausible``, within
+    ``vision_invalid``) and said once in ``warnings`` (a review: accepted, the bank ended at
+    -462 deg without a word)."""
+    from dataclasses import replace
+
+    cfg, messages, frames, _, _ = sample_offline
+    live = LiveFusion(cfg)
+    for m in messages[:300]:
+        live.push_can(m)
+    est = live.vision.estimate(frames[0][1])
+    assert est.valid
+    t0 = live.stream.t_s
+    for k in range(5):
+        live.push_vision(t0 - 0.1 + k / 100.0, replace(est, roll_rad=8.0))
+    live.push_vision(t0 - 0.04, replace(est, pitch_sigma_rad=0.0))
+    assert live.stream.counts["vision_implausible"] == 6 and live.stream.counts["vision_used"] == 0
+    said = [w for w in live.warnings if "angle beyond +-90 deg" in w]
+    assert len(said) == 1, live.warnings
+
+
 def test_a_camera_clock_seconds_off_the_bus_is_said(sample_offline):
     """The camera's stamps 2 s ahead of the bus: every frame is refused before the estimator as
     from the future; 2 s behind: every result is older than the filter's 1 s history. Either

@@ -113,6 +113,32 @@ def test_the_same_result_twice_counts_once(drive):
     np.testing.assert_allclose(twice.ekf.P, once.ekf.P, atol=1e-15)
 
 
+def test_results_whose_numbers_are_no_measurement_are_refused_and_said(drive):
+    """Every tenth result in degrees where radians are due (a roll of 8 deg handed in as 8 rad:
+    a review took the bank to -462 deg through 11 re-acquisitions, without a word), and one with
+    a sigma of 0 and one with a negative sigma: refused, counted as invalid and as implausible,
+    said once in the offline run's warnings; the state equals the run without them."""
+    imu, vis = drive.imu[drive.imu["t_s"] < 6.0], drive.vision[drive.vision["t_s"] < 6.0]
+    clean = vis.iloc[[k for k in range(len(vis)) if k % 10]]
+    bad = vis.copy()
+    bad.iloc[::10, bad.columns.get_loc("roll_deg")] += 458.0     # 8 deg read as 8 rad, roughly
+    ref, got = FusionStream(drive.lever_arm_m, options=OPTIONS), FusionStream(drive.lever_arm_m, options=OPTIONS)
+    _feed(ref, imu, clean)
+    _feed(got, imu, bad)
+    n = len(vis[::10])
+    assert got.counts["vision_implausible"] == n and got.counts["vision_invalid"] == n
+    np.testing.assert_allclose(got.ekf.x, ref.ekf.x, atol=1e-12)
+    for sig in (0.0, -0.1):
+        s = FusionStream(drive.lever_arm_m, options=OPTIONS)
+        s.add_vision(1.0, np.radians([1.0, 0.0, 0.0]), np.radians([sig, 0.1, 0.1]))
+        assert s.counts["vision_implausible"] == 1 and not s._pending
+    v = vis.copy()
+    v.iloc[::10, v.columns.get_loc("roll_deg")] += 458.0
+    run = fuse(imu, v, lever_arm_m=drive.lever_arm_m, options=OPTIONS)
+    said = [w for w in run.warnings if "refused: an angle beyond +-90 deg" in w]
+    assert len(said) == 1 and said[0].startswith(f"{n} vision result(s)"), run.warnings
+
+
 def test_results_far_ahead_or_from_before_the_imu_are_not_applied(drive):
     """A result dated more than ``history_s`` after the newest IMU sample (frame times in ms
     instead of s) is counted and dropped instead of waiting in the queue for good; results
