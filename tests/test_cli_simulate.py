@@ -329,3 +329,20 @@ def test_sigterm_during_a_simulation_leaves_no_drive_and_a_partial_one_is_refuse
     shutil.copytree(TEST_SCENARIOS.parents[2] / "fusion" / "data" / "sample_drive", half)
     r = vifusion("run", "--drive", half, "--out", tmp_path / "run")
     assert r.returncode == 2 and r.stderr.strip().startswith("error: ") and "unfinished simulation" in r.stderr
+
+
+def test_the_configs_start_time_is_the_first_frames_stamp(tmp_path):
+    """A drive simulated with a camera 50 ms off the bus (``[video] camera_time_offset_s``):
+    ``frames.csv`` carries the error, and so does the config's ``[video] start_s``, which a run
+    without ``frames.csv`` takes the frame times from (it had the true capture time, so that
+    the two timings of one drive disagreed by the offset, a review)."""
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    scen = tmp_path / "offset.toml"
+    scen.write_text(src.replace("[video]\n", "[video]\ncamera_time_offset_s = 0.05\n", 1))
+    r = vifusion("simulate", scen, "--out", tmp_path / "d", "--frames", 3, "--no-video", "--quiet")
+    assert r.returncode == 0, r.stderr
+    frames = pd.read_csv(tmp_path / "d" / "frames.csv")
+    truth = pd.read_csv(tmp_path / "d" / "truth_frames.csv")
+    cfg = load_config(tmp_path / "d" / "config.toml")
+    assert frames["t_s"].iloc[0] - truth["t_s"].iloc[0] == pytest.approx(0.05, abs=1e-9)
+    assert cfg.video.start_s == pytest.approx(frames["t_s"].iloc[0], abs=1e-9)

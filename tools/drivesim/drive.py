@@ -4,7 +4,7 @@ Files in the output folder:
 
 * ``video.mp4`` (codec mp4v; ``video.avi`` for ffv1/mjpg; ``video/`` PNG frames for png);
 * ``frames.csv``: ``frame,t_s`` in the CAN log's clock (plus ``[video] camera_time_offset_s``,
-  the simulated synchronisation error);
+  the simulated synchronisation error, which the config's ``[video] start_s`` has too);
 * ``can.<format>`` and the DBC, ``config.toml``;
 * ``truth.csv`` at ``[truth] rate_hz``: the contract's columns plus extras
   (``yaw_world_deg``, ``road_pitch_deg``, ``station_m``, ``lateral_offset_m``, ``speed_m_s``,
@@ -266,10 +266,13 @@ def _simulate_into(scenario: Scenario, tmp: Path, *, progress: bool, max_frames:
     tf = truth_frame(traj, t_frames, t_frames + offset)
     tf.insert(0, "frame", np.arange(n))
     _write_table(tf, files.truth_frames)
-    pd.DataFrame({"frame": np.arange(n), "t_s": t_frames + offset + scenario.video.camera_time_offset_s}).to_csv(
-        files.frames, index=False, float_format="%.9f")
+    stamped = t_frames + offset + scenario.video.camera_time_offset_s    # as the camera's clock says
+    pd.DataFrame({"frame": np.arange(n), "t_s": stamped}).to_csv(files.frames, index=False, float_format="%.9f")
+    # the config's start time is the first frame's stamp too: without frames.csv a run takes the
+    # frames' times from it, and they had lacked the synchronisation error (a review)
     files.config.write_text(_config_toml(scenario, files.dbc.name, signal_map(scenario.imu.pitch_rate),
-                                         scenario.video.fps, float(t_frames[0] + offset) if n else offset))
+                                         scenario.video.fps, float(stamped[0]) if n
+                                         else offset + scenario.video.camera_time_offset_s))
     if scenario.source is not None and Path(scenario.source).is_file():
         shutil.copyfile(scenario.source, tmp / "scenario.toml")
 
