@@ -291,3 +291,20 @@ def test_a_speed_profile_brakes_without_a_spike_at_its_knots():
     s_num = traj.station_m(0.0) + np.concatenate([[0.0], np.cumsum(np.diff(fine) * 0.5 * (
         traj.speed_m_s(fine)[1:] + traj.speed_m_s(fine)[:-1]))])
     np.testing.assert_allclose(traj.station_m(fine), s_num, atol=1e-3)
+
+
+def test_a_car_on_a_banked_straight_rolls_down_the_bank():
+    """A car at constant speed along a straight banked 5 deg (no turn): its springs take
+    gravity's part across the road, ``g sin(bank)``, and the body rolls towards the low side by
+    the roll gain times it: 0.5 deg per m/s^2 gives 0.43 deg, positive (leaning right) for a
+    positive bank (left edge raised, INTERFACE.md). With the turn's acceleration alone it did not
+    roll at all (a review). The world roll is then the bank plus that."""
+    traj = Trajectory(Road([Segment(100.0), Segment(50.0, 0.0, 5.0, 0.0), Segment(400.0, 0.0, 5.0, 0.0)]),
+                      Motion(vehicle="car", speed_kmh=72.0, pitch_amplitude_deg=0.0, manoeuvres=(),
+                             car_roll_gain_deg=0.5))
+    t = np.array([15.0])                                  # station 320 m: the steady bank
+    tr = traj.truth(t)
+    assert math.degrees(tr["bank"][0]) == pytest.approx(5.0, abs=1e-6)
+    expected = 0.5 * GRAVITY_M_S2 * math.sin(math.radians(5.0))
+    assert math.degrees(tr["roll"][0]) == pytest.approx(expected, abs=0.005)
+    assert math.degrees(tr["roll_world"][0] - tr["bank"][0]) == pytest.approx(expected, abs=0.005)
