@@ -52,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (drive / "config.toml").is_file() or not (drive / "frames.csv").is_file():
         ap.error(f"{drive}: not a drive folder as 'vifusion simulate' writes it (config.toml, frames.csv, ...)")
     live = LiveFusion(drive / "config.toml")           # a config file's path, or a DriveConfig
+    live.warm_up()        # the compiled kernels loaded now, not in the first frames' calls
     frames = pd.read_csv(drive / "frames.csv")         # capture times on the bus clock
     bus_t = [-math.inf]                                # the newest IMU sample's time (the bus clock)
     due_t = [frames["t_s"].iloc[0]]                    # the capture time of the camera's next frame
