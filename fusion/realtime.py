@@ -13,6 +13,7 @@ biases; so does a gap in the IMU samples (:attr:`fusion.engine.FusionOptions.max
 Example (a live bus; the README's "Embedding" has a whole program with a camera thread)::
 
     live = LiveFusion("config.toml")      # or a DriveConfig (fusion.config.load_config)
+    live.warm_up()                        # the compiled kernels loaded before the drive
     for msg in bus:                       # python-can messages
         live.push_can(msg)
         ...
@@ -121,10 +122,8 @@ class LiveFusion:
         estimates), so that the first calls of a drive do not wait for them (a review: the first
         ``push_frame`` took 256 ms, the first ``push_can`` 93 ms, and ``estimate()`` from another
         thread waited up to 58 ms behind them, over a 30 fps frame period). This object's state
-        is untouched. Returns the seconds it took (about a second here)."""
+        is untouched. Returns the seconds it took (about half a second here)."""
         import time
-
-        import can
 
         from vision.video import FrameSource
 
