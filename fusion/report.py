@@ -105,6 +105,7 @@ def summarise(r: ReportInputs) -> dict:
             v = r.vision.assign(t_s=r.vision["t_s"] + r.camera_time_offset_s)
             acc["vision"] = rmse_table(v, r.truth, t0, angles=("roll", "pitch", "yaw"),
                                        valid=v["valid"].to_numpy(dtype=bool))
+            # over the whole drive (what the run's vision gave), where the RMSE is from t0 on
             acc["vision"]["valid_fraction"] = float(np.mean(v["valid"].astype(bool)))
         if r.plain_bank is not None and len(r.plain_bank):
             pb = r.plain_bank.rename(columns={"bank_plain_deg": "bank_deg"})
@@ -387,7 +388,8 @@ def _table_html(summary: dict) -> str:
                 f"{html.escape(summary.get('calibration_from') or 'the config')}</td></tr>")
     acc = summary.get("rmse_deg") or {}
     if (acc.get("vision") or {}).get("valid_fraction") is not None:
-        rows.append(f"<tr><td>vision valid</td><td>{100 * acc['vision']['valid_fraction']:.1f} % of frames</td></tr>")
+        rows.append(f"<tr><td>vision valid</td><td>{100 * acc['vision']['valid_fraction']:.1f} % of the drive's "
+                    "frames</td></tr>")
     for k, v in summary.get("counts", {}).items():
         rows.append(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>")
     for k, v in summary.get("timings_s", {}).items():

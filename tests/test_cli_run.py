@@ -1353,3 +1353,34 @@ def test_a_truth_angle_beyond_a_turn_is_one_line(tmp_path):
     with pytest.raises(InputError, match=r"truth column roll_deg holds 1e\+308 at row 42: not an angle in degrees"):
         read_truth(tmp_path / "truth.csv")
     assert read_truth(SAMPLE_DRIVE / "truth.csv") is not None
+
+
+def test_vision_command_says_frames_without_a_wheel_speed(tmp_path):
+    """``vifusion vision --can`` with the wheel speed missing for the log's first 3 s: the frames
+    of that stretch get no travel for the road-twist map, and the command now says so, as
+    ``vifusion run`` says a late wheel speed (it said nothing, a review). The sample drive as it
+    is (its first frame comes just before the first speed) says nothing."""
+    import can as pycan
+
+    d = tmp_path / "late"
+    d.mkdir()
+    for f in SAMPLE_DRIVE.iterdir():
+        if f.name not in ("frames.csv", "can.blf"):
+            (d / f.name).symlink_to(f)
+    pd.read_csv(SAMPLE_DRIVE / "frames.csv").iloc[:150].to_csv(d / "frames.csv", index=False)
+    msgs = list(pycan.LogReader(SAMPLE_DRIVE / "can.blf"))
+    t0 = msgs[0].timestamp
+    with pycan.Logger(d / "can.blf") as w:
+        for m in msgs:
+            if not (m.arbitration_id == 0x122 and m.timestamp < t0 + 3.0):
+                w.on_message_received(m)
+    common = ("vision", "--video", d / "video.mp4", "--frames", d / "frames.csv", "--config", d / "config.toml",
+              "--workers", 1, "--quiet", "--out", tmp_path / "v.csv")
+    r = vifusion(*common, "--can", d / "can.blf")
+    assert r.returncode == 0, r.stderr
+    said = [line for line in r.stderr.splitlines() if "no wheel speed at" in line]
+    assert len(said) == 1 and "the road-twist map does not move" in said[0], r.stderr
+    n = int(said[0].split("no wheel speed at ")[1].split(" of")[0])
+    assert 85 <= n <= 95, said                  # 3 s at 30 fps, give or take the speed's last age
+    r = vifusion(*common, "--can", SAMPLE_DRIVE / "can.blf")
+    assert r.returncode == 0 and "no wheel speed" not in r.stderr, r.stderr

@@ -215,7 +215,7 @@ def test_a_source_without_a_value_is_null_and_not_a_row_of_blanks(drawn, tmp_pat
     page = (tmp_path / "report.html").read_text()
     assert "<td>vision</td>" not in page and "<td>imu_minus_vision</td>" not in page
     assert "No RMSE of vision, imu_minus_vision" in page
-    assert "+0.1000" in page and f"<td>{summary['samples']}</td>" in page and "0.0 % of frames" in page
+    assert "+0.1000" in page and f"<td>{summary['samples']}</td>" in page and "0.0 % of the drive's frames" in page
     assert f"<td>{summary['timings_s']['report']:.2f} s</td>" in page
 
 

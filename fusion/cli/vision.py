@@ -109,7 +109,7 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
     from ..drive import check_overlap, frames_outside_warning
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
-    from ..pipeline import frame_speeds
+    from ..pipeline import SPEED_SPAN_WARN_S, frame_speeds
 
     for path in (args.can, args.dbc):
         if path is not None and not path.is_file():
@@ -132,4 +132,12 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
     speeds = frame_speeds(imu, t)
     if not np.isfinite(speeds).any():
         raise InputError(f"{args.can}: no wheel speed at any frame ({mapped_as(mapping, 'speed')})")
+    missing = ~np.isfinite(speeds)
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    if missing.sum() * period > SPEED_SPAN_WARN_S:
+        # said, as `run` says a wheel speed that starts late (it said nothing, a review); a frame
+        # or two before the first speed sample is every drive's start, not worth a line
+        print(f"warning: {args.can}: no wheel speed at {int(missing.sum())} of {len(t)} frames (the first "
+              f"{t[missing][0] - t[0]:.2f} s after the first frame): the road-twist map does not move between them",
+              file=sys.stderr)
     return speeds
