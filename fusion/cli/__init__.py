@@ -11,10 +11,12 @@ import sys
 
 def _interrupted_while_loading() -> None:
     """Ctrl-C while the command's modules load: its one line and exit 130, at once. Not by
-    SystemExit: a KeyboardInterrupt that went through the half-loaded modules (numba, numpy)
-    left the interpreter marking it unhandled now and then, and the process then ended by its
-    own SIGINT after the line (exit -2: 3 of 30 interrupts at ``vision.frames``'s import, measured,
-    `test_ctrl_c_while_the_command_loads_is_one_line`). Nothing is written yet to clean up."""
+    SystemExit: with it the process now and then ended by its own SIGINT after the line (exit
+    -2, as Python does when it takes a KeyboardInterrupt for unhandled at the top: 3 of 30
+    interrupts at ``vision.frames``'s import, measured; 0 of 80 this way), which
+    `test_ctrl_c_while_the_command_loads_is_one_line` caught in CI runs. Where in the
+    half-loaded modules (numba, numpy) the interpreter came to take it for unhandled was not
+    found. Nothing is written yet to clean up."""
     import os
 
     print("error: interrupted", file=sys.stderr)
