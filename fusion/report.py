@@ -20,7 +20,7 @@ from .calibration import calibration_table
 from .files import write_bytes_atomically
 from .metrics import ANGLES, consistency, interp_truth, rmse_table, wrap_deg
 
-__all__ = ["ReportInputs", "write_report", "summarise"]
+__all__ = ["ReportInputs", "write_report", "summarise", "source_name"]
 
 CONVERGENCE_S = 2.0
 #: Scored time after the convergence below which the report gives no RMSE (a 2 s drive left one sample).
@@ -49,6 +49,12 @@ class ReportInputs:
     calibration_from: str | None = None
     #: The run's input files by kind (video, frames, can_log, dbc, config, truth), as given.
     inputs: dict | None = None
+
+
+def source_name(src: str, smoothed: bool) -> str:
+    """An estimate's name where it is shown (legends, the page's and the printed RMSE rows): the
+    filter's says whether it was smoothed; the baselines are forward filters either way."""
+    return "fused (smoothed)" if src == "fused" and smoothed else src
 
 
 def _truth_covers_s(fused: pd.DataFrame, tr: pd.DataFrame, t0: float, angles, every: bool = False) -> float:
@@ -159,7 +165,8 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
 
     #: the filter's estimate: forward, or smoothed (RTS) with --smooth, whose samples each saw the
     #: whole drive (the IMU-only and IMU-minus-vision baselines stay forward filters)
-    fused = "fused (smoothed)" if r.smoothed else "fused"
+    fused = source_name("fused", r.smoothed)
+    smoothed = " (RTS smoothed)" if r.smoothed else ""     # the figures' titles
     settled = tf >= CONVERGENCE_S
     if not settled.any():   # a drive shorter than the convergence: its panels scaled to all of it (they had
         settled[:] = True   # been scaled to the truth alone, the estimates off the panel, a review)
@@ -194,8 +201,7 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             shown.append(truth[f"{a}_deg"].to_numpy())
         _scale_to(ax, shown)
     _finish(figs, "attitude.png", fig, axes, [f"{a} [deg]" for a in ("roll", "pitch", "yaw", "bank")],
-            f"{r.title}: attitude relative to the road and road bank" + (" (RTS smoothed)" if r.smoothed else ""),
-            ncol=4)
+            f"{r.title}: attitude relative to the road and road bank{smoothed}", ncol=4)
 
     # 2. relative to gravity
     fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
@@ -209,7 +215,7 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
             shown.append(truth[f"{a}_deg"].to_numpy())
         _scale_to(ax, shown)
     _finish(figs, "world.png", fig, axes, ("roll_world [deg]", "pitch_world [deg]"),
-            "attitude relative to gravity" + (" (RTS smoothed)" if r.smoothed else ""), ncol=4)
+            f"attitude relative to gravity{smoothed}", ncol=4)
 
     # 3. errors against truth with the 2-sigma envelope: every angle the truth has (a real
     # recording's reference may have the world angles only)
@@ -352,8 +358,7 @@ def _table_html(summary: dict) -> str:
                 continue
             cells = "".join(f"<td>{vals[c]:.3f}</td>" if c in vals and math.isfinite(vals[c]) else "<td></td>"
                             for c in cols)
-            name = "fused (smoothed)" if src == "fused" and summary.get("smoothed") else src
-            rows.append(f"<tr><td>{html.escape(name)}</td>{cells}</tr>")
+            rows.append(f"<tr><td>{html.escape(source_name(src, summary.get('smoothed')))}</td>{cells}</tr>")
         rows.append("</table>")
         if none:
             rows.append(f"<p>No RMSE of {html.escape(', '.join(none))}: no value to score (no valid vision frame, "

@@ -369,6 +369,8 @@ def _offset_line(t: dict) -> str:
 
 
 def _print_summary(out, files, frames, imu, timings, warnings, summary, time_offset, total_s, prefix="") -> None:
+    from ..report import source_name
+
     drive_s = float(frames["t_s"].iloc[-1] - frames["t_s"].iloc[0]) if len(frames) > 1 else math.nan
     cal = f", {out}/calibration.toml" if (out / "calibration.toml").is_file() else ""
     report = "report.html" if (out / "report" / "report.html").is_file() else "summary.json"
@@ -390,7 +392,6 @@ def _print_summary(out, files, frames, imu, timings, warnings, summary, time_off
                               if isinstance(v, float) and math.isfinite(v) and k != "valid_fraction")
             # a source without a value is left out ('nan' had been printed as one, a review)
             if cells:
-                name = "fused (smoothed)" if src == "fused" and summary.get("smoothed") else src
-                print(f"RMSE vs truth [deg] {name}: {cells}")
+                print(f"RMSE vs truth [deg] {source_name(src, summary.get('smoothed'))}: {cells}")
     for w in (summary or {}).get("warnings", warnings):   # the report's adds its own
         print(f"warning: {prefix}{w}", file=sys.stderr)

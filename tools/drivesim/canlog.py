@@ -191,9 +191,9 @@ def _drive_header(writer: Any, out_path: Path, first_epoch_s: float) -> None:
     ``.partial`` folder) as the file's name; the MF4 start time (the time of writing, which the
     frames' times are stored relative to) as the first frame's. A simulated drive is then the
     same to the byte when simulated again on the same machine."""
-    if isinstance(writer, can.ASCWriter):        # its three header lines are written, nothing else yet
-        from datetime import datetime
+    from datetime import datetime
 
+    if isinstance(writer, can.ASCWriter):        # its three header lines are written, nothing else yet
         date = writer._format_header_datetime(datetime.fromtimestamp(first_epoch_s))
         writer.file.seek(0)
         writer.file.truncate()
@@ -201,8 +201,6 @@ def _drive_header(writer: Any, out_path: Path, first_epoch_s: float) -> None:
     elif isinstance(writer, can.TRCWriter):      # its header is written with the first frame
         writer.filepath = out_path.name
     elif isinstance(writer, can.MF4Writer):      # its start time, which the frames' times count from
-        from datetime import datetime
-
         writer._mdf.header.start_time = datetime.fromtimestamp(first_epoch_s)
         writer.last_timestamp = writer._start_time = first_epoch_s
 
