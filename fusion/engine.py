@@ -22,7 +22,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from operator import attrgetter
 
 import numpy as np
@@ -814,7 +814,17 @@ class FusionStream:
         gravity reference needs the speed for its centripetal term and waits for it, and
         without it the filter's sigma of those angles shrinks on weak couplings while they
         drift (a review fed a drive without its speed message: world roll 36 deg against 14,
-        sigma 1.7). The angles relative to the road rest on the vision and stay."""
+        sigma 1.7). The angles relative to the road rest on the vision and stay. Before the
+        first IMU sample (of the stream, or since a restart) there is no estimate: ``t_s``, the
+        angles, their sigmas and the covariance are NaN, the IMU biases (what a restart keeps)
+        are given (a review: roll 0 +- 7 deg was given at time NaN, the filter's prior, which a
+        caller could take for an estimate)."""
+        if not self._hist:
+            est = estimate_from(math.nan, self.ekf.x, self.ekf.P, math.nan, self.ekf.has_pitch_rate)
+            nan = math.nan
+            return replace(est, **{f.name: nan for f in fields(Estimate)
+                                   if f.name not in ("gyro_bias_rad_s", "cov_rpyb_rad2")},
+                           cov_rpyb_rad2=np.full((4, 4), nan))
         est = estimate_from(self.t_s, self.ekf.x, self.ekf.P, self.t_s - self._last_vision_t, self.ekf.has_pitch_rate)
         if self._speed_initialized:
             return est

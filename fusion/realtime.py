@@ -71,7 +71,13 @@ def _refused(reason: str) -> VisionEstimate:
 
 def _stamp(t_s, method: str) -> float:
     """A capture time as a float; a caller's non-number is a TypeError that says so (NaN is a
-    number: refused and counted as a bad stamp)."""
+    number: refused and counted as a bad stamp). So is a numpy float narrower than float64: a
+    float32 keeps 24 bits, steps of 128 s at a bus clock of 1.7e9 s (Unix time), and its frames
+    were refused as "the camera's clock stepped back" (a review). Refused at any value, so that
+    a drive does not start to fail once its clock has grown."""
+    if isinstance(t_s, np.floating) and np.finfo(t_s).nmant < np.finfo(np.float64).nmant:
+        raise TypeError(f"{method} takes the capture time as a float64 (or Python float), got a {t_s.dtype}: "
+                        f"{np.finfo(t_s).nmant + 1} bits, steps of {float(np.spacing(np.abs(t_s))):.3g} s at {t_s}")
     try:
         return float(t_s)
     except (TypeError, ValueError):
@@ -292,7 +298,8 @@ class LiveFusion:
             self.warnings.append(f"{CLOCK_BACK_WARN_FRAMES} frames in a row {what}")
 
     def estimate(self) -> Estimate:
-        """The latest estimate (after the newest IMU sample), with 1-sigma."""
+        """The latest estimate (after the newest IMU sample), with 1-sigma; before the first IMU
+        sample, NaN (:meth:`fusion.engine.FusionStream.estimate`)."""
         with self._lock:
             return self.stream.estimate()
 

@@ -398,10 +398,37 @@ def test_caller_mistakes_are_type_errors_that_say_what_was_expected(sample_offli
                         (lambda: live.push_can(can.Message(timestamp=None)), "a number as timestamp"),
                         (lambda: live.push_frame(0.0, None), "push_frame takes the frame as a numpy image"),
                         (lambda: live.push_frame(None, frames[0][1]), "push_frame takes the capture time"),
-                        (lambda: live.push_vision(0.0, (0.0, 0.0, 0.0)), "push_vision takes a vision.VisionEstimate")):
+                        (lambda: live.push_vision(0.0, (0.0, 0.0, 0.0)), "push_vision takes a vision.VisionEstimate"),
+                        # 24 bits: at a Unix-time clock, steps of 128 s (refused as "stepped back", a review)
+                        (lambda: live.push_frame(np.float32(1.7e9), frames[0][1]), "float64.*float32.*steps of 128 s"),
+                        (lambda: live.push_vision(np.float16(1.0), live.vision.estimate(frames[0][1])),
+                         "push_vision takes the capture time as a float64")):
         with pytest.raises(TypeError, match=words):
             call()
+    live.push_frame(np.float64(frames[0][0]), frames[0][1])     # numpy's float64 is a stamp
     assert not live.push_frame(float("nan"), frames[0][1]).valid and live.counts["frames_bad_time"] == 1
+
+
+def test_no_estimate_before_the_first_imu_sample(sample_offline):
+    """Before any CAN message ``estimate()`` gave the filter's prior, roll 0 +- 7 deg, at time
+    NaN, which a caller could take for an estimate (a review): now every angle, sigma and the
+    covariance are NaN until the first IMU sample, and finite with it (the roll relative to the
+    road from the prior until vision comes: its sigma says so, over 1 deg)."""
+    cfg, messages, _, _, _ = sample_offline
+    live = LiveFusion(cfg)
+    e = live.estimate()
+    numbers = [getattr(e, f) for f in ("t_s", "roll_rad", "pitch_rad", "yaw_rad", "bank_rad", "roll_world_rad",
+                                       "pitch_world_rad", "grade_rad", "roll_sigma_rad", "pitch_sigma_rad",
+                                       "yaw_sigma_rad", "bank_sigma_rad", "speed_m_s", "vision_age_s")]
+    assert np.isnan(numbers).all() and np.isnan(e.cov_rpyb_rad2).all(), e
+    assert np.allclose(e.gyro_bias_rad_s, 0.0)                   # the config's biases: what is known
+    n = 0
+    for m in messages:
+        n += live.push_can(m)
+        if n:
+            break
+    e = live.estimate()
+    assert np.isfinite([e.t_s, e.roll_rad, e.roll_sigma_rad]).all() and np.degrees(e.roll_sigma_rad) > 1.0, e
 
 
 def test_a_frame_stamped_far_ahead_or_not_at_all_is_refused_alone(sample_offline):
