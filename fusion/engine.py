@@ -326,6 +326,19 @@ class FusionStream:
             self.counts["vision_late"] += 1
             self._apply_late(item)
 
+    def withdraw_vision(self, t_s: float) -> bool:
+        """Take back the result captured at ``t_s`` if it still waits for the IMU (not applied:
+        the filter is as if it had not come); False when there is none waiting (applied, or
+        dropped). For a live frame whose stamp turned out to be a glitch
+        (:meth:`fusion.realtime.LiveFusion.push_frame`)."""
+        for i, p in enumerate(self._pending):
+            if isinstance(p, VisionMeasurement) and p.t_s == t_s:
+                del self._pending[i]
+                if t_s in self._vision_times:
+                    self._vision_times.remove(t_s)
+                return True
+        return False
+
     def too_far_ahead(self, t_s: float, newest_s: float | None = None) -> bool:
         """Whether a vision result captured at ``t_s`` is too far ahead of the newest IMU sample
         (``newest_s``, default the stream's; none yet: never) to be kept (a clock mix-up): it

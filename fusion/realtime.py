@@ -58,6 +58,11 @@ __all__ = ["LiveFusion"]
 #: or before the last one taken (stepped back), too far ahead of the bus, or too old for the
 #: filter's history.
 CLOCK_BACK_WARN_FRAMES = 30
+#: A frame stamped this far ahead of the newest IMU sample (s) is taken provisionally: should
+#: the next frame come stamped before it, and after the frame before it, its stamp was a glitch
+#: and it is taken back (:meth:`LiveFusion.push_frame`). A frame is normally stamped at or
+#: behind the bus (handed in after its capture) or a bus latency ahead: milliseconds.
+GLITCH_LEAD_S = 0.1
 #: Lines in ``warnings`` up to which a gap in the IMU samples adds its own (a bus that drops out
 #: every second would otherwise grow the list for good; the count goes on).
 _MAX_GAP_LINES = 20
@@ -105,7 +110,7 @@ class LiveFusion:
         #: Frames not after the previous frame (skipped), restarts of the filter on a bus clock
         #: that went back. (IMU samples the decoder released without every gyro and
         #: accelerometer value are the stream's ``counts["imu_invalid"]``.)
-        self.counts = dict(frames_out_of_order=0, frames_bad_time=0, clock_restarts=0)
+        self.counts = dict(frames_out_of_order=0, frames_bad_time=0, frames_stamp_glitch=0, clock_restarts=0)
         self.warnings: list[str] = []
         self._decoder_said = 0                 # the decoder's warnings copied into ours
         if self.settings.estimate_time_offset:
@@ -118,6 +123,9 @@ class LiveFusion:
         self._speeds: deque = deque(maxlen=256)    # recent fresh wheel speeds: (t_s, m/s)
         self._last_frame = (math.nan, math.nan)    # the last frame: (t_s, speed then)
         self._last_estimate: VisionEstimate | None = None
+        # the last frame, taken provisionally (GLITCH_LEAD_S): (its capture time, and the last
+        # frame, last estimate and estimator state before it), or None
+        self._provisional: tuple | None = None
         # frames in a row refused for their stamps: not after the last one taken, too far ahead
         # of the bus, their results too old for the filter (CLOCK_BACK_WARN_FRAMES)
         self._in_row = dict(behind=0, ahead=0, old=0)
@@ -212,7 +220,10 @@ class LiveFusion:
         returned. A frame whose stamp is not finite, or too far ahead of the bus
         (``stream.counts["vision_future"]``: a bad stamp, a camera clock that stepped), is
         refused before the estimator, and does not hold back the frames after it: an invalid
-        estimate whose ``reason`` says why is returned. Thirty frames in a row refused for their stamps, or with results too old for
+        estimate whose ``reason`` says why is returned. A frame stamped ahead of the bus by more
+        than :data:`GLITCH_LEAD_S` is taken provisionally: the next frame stamped before it (and
+        after the frame before it) takes it back as a stamp glitch (:meth:`_take_back_glitch`).
+        Thirty frames in a row refused for their stamps, or with results too old for
         the filter's history, put a line in ``warnings``. From one thread at a time (the
         estimator keeps the road map between frames)."""
         t_cap = _stamp(t_s, "push_frame") + self.settings.camera_time_offset_s
@@ -223,6 +234,8 @@ class LiveFusion:
             if not math.isfinite(t_cap):
                 self.counts["frames_bad_time"] += 1
                 return _refused(f"frame stamp {t_s} is not a time")
+            if not t_cap > t0 and math.isfinite(t0) and self._take_back_glitch(t_cap):
+                t0, v0 = self._last_frame
             if not t_cap > t0 and math.isfinite(t0):
                 self.counts["frames_out_of_order"] += 1
                 self._count_in_row("behind", f"stamped at or before the last one taken ({t0:.3f} s; this one "
@@ -246,11 +259,36 @@ class LiveFusion:
             # which the road-twist map turned into other angles on 550 of 600 frames, a review)
             speeds = [*self._speeds, *self.decoder.pending_speeds(t_cap)]
             v = float(last_speed(*np.array(speeds).T, t_cap)[0]) if speeds else math.nan
+            self._provisional = None
+            if t_cap > self.stream.t_s + GLITCH_LEAD_S:
+                self._provisional = (t_cap, self._last_frame, self._last_estimate, self.vision.snapshot())
             self._last_frame = (t_cap, v)
         est = self.vision.estimate(image, travel_m=travel_between(v0, v, t_cap - t0))
         self._last_estimate = est
         self.push_vision(t_s, est)
         return est
+
+    def _take_back_glitch(self, t_cap: float) -> bool:
+        """Whether the last frame taken was a stamp glitch, and then take it back: it was taken
+        provisionally, stamped ahead of the bus, this frame comes stamped before it and after the
+        frame before it, and its result still waits for the IMU (or was invalid). The filter, the estimator's
+        state and the last frame are then as if it had not come (counted in
+        ``counts["frames_stamp_glitch"]``). Before, one frame stamped 0.4 s ahead held back the
+        twelve after it as out of order, and its travel moved the road-twist map 0.4 s ahead (a
+        review)."""
+        if self._provisional is None:
+            return False
+        t_glitch, before, estimate, state = self._provisional
+        if not (t_cap > before[0] or math.isnan(before[0])):
+            return False
+        glitch = self._last_estimate
+        if glitch is not None and glitch.valid and not self.stream.withdraw_vision(t_glitch):
+            return False     # applied already (or not queued): it stands
+        # (an invalid result never reached the filter; its count in vision_invalid stays)
+        self.vision.restore(state)
+        self._last_frame, self._last_estimate, self._provisional = before, estimate, None
+        self.counts["frames_stamp_glitch"] += 1
+        return True
 
     def push_vision(self, t_s: float, est: VisionEstimate) -> None:
         """A vision result computed elsewhere (another thread or process), captured at ``t_s``

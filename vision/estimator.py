@@ -60,6 +60,7 @@ the one at the cross-sections. Measured through the fusion: ``README``, "Fusion"
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 from dataclasses import dataclass, field, replace
@@ -434,6 +435,17 @@ class Estimator:
         self._last_call_valid = False
         self.twist_map.reset()
         self._map_active = False
+
+    def snapshot(self) -> tuple:
+        """What the next frames' estimates depend on (the last estimates they start from, the
+        road-twist map), to :meth:`restore` when a frame turns out not to belong (a live frame
+        whose stamp was a glitch, :class:`fusion.realtime.LiveFusion`)."""
+        return self.last, self._before_last, self._last_call_valid, self._map_active, copy.deepcopy(self.twist_map)
+
+    def restore(self, snapshot: tuple) -> None:
+        """Back to a :meth:`snapshot`: the frames after it as if the frames between were not."""
+        self.last, self._before_last, self._last_call_valid, self._map_active, twist_map = snapshot
+        self.twist_map = copy.deepcopy(twist_map)    # the snapshot stays as it was, for another restore
 
     def estimate(self, image, seed=None, *, travel_m: float | None = None, keep_debug: bool = False) -> VisionEstimate:
         """Estimate one frame. ``seed``: a previous :class:`VisionEstimate` or ``(roll, pitch,
