@@ -258,6 +258,8 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
     sources = []
     for key, plans in by_source.items():
         msg, mux = src_info[key]
+        _check_disjoint([(p.signal, p.ref) for p in plans] + [(c.signal, f"multiplexer {c.signal.name}") for c in mux],
+                        f"{name}: message {msg.name}")
         label = msg.name + "".join(f"[{c.signal.name}={'|'.join(map(str, sorted(c.ids)))}]" for c in mux)
         sources.append(SourcePlan(
             name=label, frame_id=msg.frame_id, is_extended=bool(msg.is_extended_frame),
@@ -318,6 +320,27 @@ def _check_fits(sig: Any, msg: Any, where: str) -> None:
         )
     if sig.is_float and sig.length not in (16, 32, 64):
         raise ImuConfigError(f"{where}: a float signal must be 16, 32 or 64 bits, got {sig.length}")
+
+
+def _bits(sig: Any) -> frozenset[tuple[int, int]]:
+    """The (byte, bit) places of a signal in its message (a Motorola signal's ``start`` is its
+    most significant bit, the bits running down within a byte, then on to the next byte's bit 7)."""
+    if sig.byte_order == "little_endian":
+        return frozenset((i // 8, i % 8) for i in range(sig.start, sig.start + sig.length))
+    msb = 8 * (sig.start // 8) + 7 - sig.start % 8
+    return frozenset((p // 8, 7 - p % 8) for p in range(msb, msb + sig.length))
+
+
+def _check_disjoint(signals: list[tuple[Any, str]], where: str) -> None:
+    """The mapped signals read from one message (and its multiplexers) must not share bits: they
+    would decode one number as two (cantools' strict check of the whole DBC is off, for the
+    overlaps real DBCs have elsewhere, :func:`load_dbc`; such a mapping was accepted, a review)."""
+    for i, (a, name_a) in enumerate(signals):
+        for b, name_b in signals[i + 1:]:
+            shared = _bits(a) & _bits(b)
+            if shared and a is not b:
+                raise ImuConfigError(f"{where}: {name_a} and {name_b} share {len(shared)} bit(s) (byte "
+                                     f"{min(shared)[0]}): the DBC's signal layout is wrong")
 
 
 def _mux_chain(sig: Any, msg: Any, where: str) -> tuple[MuxCondition, ...]:

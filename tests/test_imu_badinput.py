@@ -552,6 +552,11 @@ def test_DBC_STALE_VALUE_TABLES_are_dropped(tmp_path, clean):
 @pytest.mark.parametrize("edit, pattern", [
     (("BO_ 376 IMU_ACC", "BO_ 372 IMU_ACC"), "IMU_RATE and IMU_ACC both have ID 0x174"),
     (("(0.005,-163.84)", "(0,-163.84)"), "scale 0, offset -163.84"),
+    # RateY moved onto RateX's high byte: both were decoded from the shared bits (a review)
+    ((" SG_ RateY : 16|16@1+", " SG_ RateY : 8|16@1+"),
+     "message IMU_RATE: IMU_RATE.RateX and IMU_RATE.RateY share 8 bit(s) (byte 1)"),
+    # a Motorola RateZ whose start bit (its most significant, 23: byte 2's bit 7) lays it on RateY
+    ((" SG_ RateZ : 32|16@1+", " SG_ RateZ : 23|16@0+"), "RateY and IMU_RATE.RateZ share 16 bit(s) (byte 2)"),
 ])
 def test_DBC_TWO_MESSAGES_ONE_ID_or_A_ZERO_SCALE(tmp_path, clean, edit, pattern):
     """Two mapped messages with one frame ID would decode one's bytes as the other's signals;
