@@ -49,7 +49,7 @@ from .config import DriveConfig, load_config
 from .engine import Estimate, FusionStream
 from .errors import ConfigError
 from .options import fusion_options_from_table
-from .pipeline import implausible_vision_warning, last_speed
+from .pipeline import implausible_vision_warning, last_speed, vision_refused_warning
 
 __all__ = ["LiveFusion"]
 
@@ -63,6 +63,9 @@ CLOCK_BACK_WARN_FRAMES = 30
 #: and it is taken back (:meth:`LiveFusion.push_frame`). A frame is normally stamped at or
 #: behind the bus (handed in after its capture) or a bus latency ahead: milliseconds.
 GLITCH_LEAD_S = 0.1
+#: The span of recent results (s) over which the share the filter's gate refused is judged
+#: live (:data:`fusion.pipeline.VISION_REFUSED_WARN`; offline: the whole drive).
+VISION_REFUSED_SPAN_S = 10.0
 #: Lines in ``warnings`` up to which a gap in the IMU samples adds its own (a bus that drops out
 #: every second would otherwise grow the list for good; the count goes on).
 _MAX_GAP_LINES = 20
@@ -126,6 +129,10 @@ class LiveFusion:
         # the last frame, taken provisionally (GLITCH_LEAD_S): (its capture time, and the last
         # frame, last estimate and estimator state before it), or None
         self._provisional: tuple | None = None
+        # (capture time, results used, refused) at each result handed to the filter, over the
+        # last VISION_REFUSED_SPAN_S; whether the share refused was said
+        self._gate_log: deque = deque()
+        self._gate_said = False
         # frames in a row refused for their stamps: not after the last one taken, too far ahead
         # of the bus, their results too old for the filter (CLOCK_BACK_WARN_FRAMES)
         self._in_row = dict(behind=0, ahead=0, old=0)
@@ -184,6 +191,7 @@ class LiveFusion:
                     self.stream.restart(clock_reset=True)
                     self._speeds.clear()
                     self._last_frame = (math.nan, math.nan)
+                    self._gate_log.clear()             # its times are of the clock before
                     self.counts["clock_restarts"] += 1
                 # an incomplete sample (a value missing) is skipped and counted by the stream;
                 # its wheel speed still dates the frames
@@ -328,6 +336,24 @@ class LiveFusion:
                                    "behind, or camera_time_offset_s wrong? (stream.counts['vision_too_old'])")
             elif est.valid:
                 self._in_row["old"] = self._in_row["ahead"] = 0
+            if not self._gate_said:
+                self._judge_gate(t_cap)
+
+    def _judge_gate(self, t_cap: float) -> None:
+        """Say once when the filter's gate refused more than its share of the results of the last
+        :data:`VISION_REFUSED_SPAN_S` (a camera clock 0.2 s or more off the bus: the bank ended
+        1.05 deg off on the sample drive with no word, a review)."""
+        c = self.stream.counts
+        log = self._gate_log
+        log.append((t_cap, c["vision_used"], c["vision_rejected"]))
+        while log[0][0] < t_cap - VISION_REFUSED_SPAN_S:
+            log.popleft()
+        _, used, refused = log[0]
+        refused = c["vision_rejected"] - refused
+        line = vision_refused_warning(refused, refused + c["vision_used"] - used, f" in {VISION_REFUSED_SPAN_S:g} s")
+        if line:
+            self.warnings.append(line)
+            self._gate_said = True
 
     def _count_in_row(self, kind: str, what: str) -> None:
         """One more frame in a row refused for its stamp; the warning once at the limit."""
