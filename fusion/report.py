@@ -188,8 +188,15 @@ def _plots(r: ReportInputs) -> dict[str, bytes]:
     for ax, a in zip(axes, ("roll", "pitch", "yaw", "bank")):
         shown = []
         if a != "bank" and vis is not None and len(vis):
-            ax.plot(vis["t_s"] + r.camera_time_offset_s - t0, vis[f"{a}_deg"], ".", ms=2.5, color="tab:orange",
-                    label="vision", alpha=0.7)
+            # with its own 2-sigma (the estimator's, before the filter's floor) as bars, where
+            # the vision table has it (they were points alone, a review)
+            sig = vis.get(f"{a}_sigma_deg")
+            bars = ax.errorbar(vis["t_s"] + r.camera_time_offset_s - t0, vis[f"{a}_deg"],
+                               yerr=None if sig is None else 2.0 * sig.to_numpy(dtype=float), fmt=".", ms=2.5,
+                               color="tab:orange", elinewidth=0.5, alpha=0.7,
+                               label="vision" if sig is None else "vision, its own 2-sigma")
+            for lines in bars[2]:
+                lines.set_alpha(0.3)    # the bars behind the points (two-line frames' reach off the panel)
             shown.append(vis[f"{a}_deg"].to_numpy())
         if a == "bank" and r.plain_bank is not None and len(r.plain_bank):
             ax.plot(r.plain_bank["t_s"] - t0, r.plain_bank["bank_plain_deg"], ".", ms=2.5, color="tab:purple",
