@@ -255,11 +255,17 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
         )
         by_source.setdefault(key, []).append(plan)
         src_info[key] = (msg, mux)
+    # the mapped signals of one message, across its multiplexer branches, with their selectors
+    by_message: dict[tuple, list] = {}
+    for key, plans in by_source.items():
+        msg, mux = src_info[key]
+        by_message.setdefault(key[:2], []).extend(
+            [(p.signal, p.ref, mux) for p in plans] + [(c.signal, f"multiplexer {c.signal.name}", ()) for c in mux])
+    for key, signals in by_message.items():
+        _check_disjoint(signals, f"{name}: message {src_info[next(k for k in by_source if k[:2] == key)][0].name}")
     sources = []
     for key, plans in by_source.items():
         msg, mux = src_info[key]
-        _check_disjoint([(p.signal, p.ref) for p in plans] + [(c.signal, f"multiplexer {c.signal.name}") for c in mux],
-                        f"{name}: message {msg.name}")
         label = msg.name + "".join(f"[{c.signal.name}={'|'.join(map(str, sorted(c.ids)))}]" for c in mux)
         sources.append(SourcePlan(
             name=label, frame_id=msg.frame_id, is_extended=bool(msg.is_extended_frame),
@@ -331,14 +337,17 @@ def _bits(sig: Any) -> frozenset[tuple[int, int]]:
     return frozenset((p // 8, 7 - p % 8) for p in range(msb, msb + sig.length))
 
 
-def _check_disjoint(signals: list[tuple[Any, str]], where: str) -> None:
-    """The mapped signals read from one message (and its multiplexers) must not share bits: they
-    would decode one number as two (cantools' strict check of the whole DBC is off, for the
-    overlaps real DBCs have elsewhere, :func:`load_dbc`; such a mapping was accepted, a review)."""
-    for i, (a, name_a) in enumerate(signals):
-        for b, name_b in signals[i + 1:]:
+def _check_disjoint(signals: list[tuple[Any, str, tuple]], where: str) -> None:
+    """The mapped signals of one message (with their multiplexer conditions) and its
+    multiplexers must not share bits where they can be in one frame: they would decode one
+    number as two (cantools' strict check of the whole DBC is off, for the overlaps real DBCs
+    have elsewhere, :func:`load_dbc`; such a mapping was accepted, a review). Signals in
+    different branches of one multiplexer (disjoint values of it) are never in one frame."""
+    for i, (a, name_a, mux_a) in enumerate(signals):
+        for b, name_b, mux_b in signals[i + 1:]:
             shared = _bits(a) & _bits(b)
-            if shared and a is not b:
+            exclusive = any(ca.signal.name == cb.signal.name and not ca.ids & cb.ids for ca in mux_a for cb in mux_b)
+            if shared and a is not b and not exclusive:
                 raise ImuConfigError(f"{where}: {name_a} and {name_b} share {len(shared)} bit(s) (byte "
                                      f"{min(shared)[0]}): the DBC's signal layout is wrong")
 

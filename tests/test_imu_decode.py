@@ -130,6 +130,25 @@ def _variant_messages(db, n=200, seed=0):
     return msgs, truth
 
 
+def test_mapped_signals_that_share_bits_within_a_frame_are_refused(tmp_path):
+    """AccX (page 0) and AccY (page 1) lie on the same bits in different pages of the
+    multiplexer: never in one frame, accepted. A plain signal of the message on AccX's bits is
+    in every page-0 frame: mapped with AccX, refused (the first check compared only signals of
+    one page, a review); so is a mapped signal on the multiplexer's own bits."""
+    from imu import ImuConfigError
+
+    dbc = tmp_path / "v.dbc"
+    dbc.write_text(VARIANTS_DBC)
+    resolve(CanMapping(dbc, VARIANT_SIGNALS))
+    dbc.write_text(VARIANTS_DBC.replace(" SG_ AccX m0", ' SG_ Temp : 8|16@1- (0.001,0) [-32.768|32.767] "m/s^2" '
+                                        "Vector__XXX\n SG_ AccX m0"))
+    with pytest.raises(ImuConfigError, match="IMU_MUX.Temp and IMU_MUX.AccX share 16 bit"):
+        resolve(CanMapping(dbc, dict(VARIANT_SIGNALS, accel_x="IMU_MUX.Temp", accel_y="IMU_MUX.AccX")))
+    dbc.write_text(VARIANTS_DBC.replace("SG_ AccX m0 : 8|16@1-", "SG_ AccX m0 : 0|16@1-"))
+    with pytest.raises(ImuConfigError, match="IMU_MUX.AccX and multiplexer Page share 2 bit"):
+        resolve(CanMapping(dbc, VARIANT_SIGNALS))
+
+
 @pytest.mark.parametrize("suffix", [".blf", ".asc", ".log"])  # the writers that keep CAN FD frames
 def test_fd_extended_multiplexed_both_byte_orders(tmp_path, suffix):
     dbc = tmp_path / "variants.dbc"
