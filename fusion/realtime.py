@@ -58,13 +58,16 @@ __all__ = ["LiveFusion"]
 #: or before the last one taken (stepped back), too far ahead of the bus, or too old for the
 #: filter's history.
 CLOCK_BACK_WARN_FRAMES = 30
-#: A frame stamped this far ahead of the newest IMU sample (s) is taken provisionally: should
-#: the next frame come stamped before it, and after the frame before it, its stamp was a glitch
-#: and it is taken back (:meth:`LiveFusion.push_frame`). A frame is normally stamped at or
-#: behind the bus (handed in after its capture) or a bus latency ahead: milliseconds.
+#: A frame stamped this far ahead of the newest IMU sample and of the frame before it (s) is
+#: taken provisionally: should the next frame come stamped before it, and after the frame
+#: before it, its stamp was a glitch and it is taken back (:meth:`LiveFusion.push_frame`). A
+#: frame is normally stamped at or behind the bus (handed in after its capture) or a bus
+#: latency ahead, and a frame period after the one before it. Not handled: two glitches in a
+#: row, and a glitch before the first IMU sample (the bus has no time yet).
 GLITCH_LEAD_S = 0.1
-#: The span of recent results (s) over which the share the filter's gate refused is judged
-#: live (:data:`fusion.pipeline.VISION_REFUSED_WARN`; offline: the whole drive).
+#: The span of the bus clock (s) over which the share of the results the filter's gate refused
+#: is judged live, once it has passed since the start or a clock restart
+#: (:data:`fusion.pipeline.VISION_REFUSED_WARN`; offline: the whole drive).
 VISION_REFUSED_SPAN_S = 10.0
 #: Lines in ``warnings`` up to which a gap in the IMU samples adds its own (a bus that drops out
 #: every second would otherwise grow the list for good; the count goes on).
@@ -82,10 +85,17 @@ def _stamp(t_s, method: str) -> float:
     number: refused and counted as a bad stamp). So is a numpy float narrower than float64: a
     float32 keeps 24 bits, steps of 128 s at a bus clock of 1.7e9 s (Unix time), and its frames
     were refused as "the camera's clock stepped back" (a review). Refused at any value, so that
-    a drive does not start to fail once its clock has grown."""
-    if isinstance(t_s, np.floating) and np.finfo(t_s).nmant < np.finfo(np.float64).nmant:
-        raise TypeError(f"{method} takes the capture time as a float64 (or Python float), got a {t_s.dtype}: "
-                        f"{np.finfo(t_s).nmant + 1} bits, steps of {float(np.spacing(np.abs(t_s))):.3g} s at {t_s}")
+    a drive does not start to fail once its clock has grown (a 0-d array of one too, which got
+    past the first form of the check). A string or a bool is no time either (float("17.0") and
+    True had been taken)."""
+    dtype = getattr(t_s, "dtype", None)
+    if dtype is not None and dtype.kind == "f" and np.finfo(dtype).nmant < np.finfo(np.float64).nmant:
+        value = np.asarray(t_s)
+        raise TypeError(f"{method} takes the capture time as a float64 (or Python float), got a {dtype}: "
+                        f"{np.finfo(dtype).nmant + 1} bits, steps of {float(np.spacing(np.abs(value))):.3g} s at "
+                        f"{value}")
+    if isinstance(t_s, (str, bytes, bool, np.bool_)):
+        raise TypeError(f"{method} takes the capture time in seconds on the bus clock, got {t_s!r}")
     try:
         return float(t_s)
     except (TypeError, ValueError):
@@ -228,8 +238,8 @@ class LiveFusion:
         returned. A frame whose stamp is not finite, or too far ahead of the bus
         (``stream.counts["vision_future"]``: a bad stamp, a camera clock that stepped), is
         refused before the estimator, and does not hold back the frames after it: an invalid
-        estimate whose ``reason`` says why is returned. A frame stamped ahead of the bus by more
-        than :data:`GLITCH_LEAD_S` is taken provisionally: the next frame stamped before it (and
+        estimate whose ``reason`` says why is returned. A frame stamped ahead of the bus and of the frame
+        before it by more than :data:`GLITCH_LEAD_S` is taken provisionally: the next frame stamped before it (and
         after the frame before it) takes it back as a stamp glitch (:meth:`_take_back_glitch`).
         Thirty frames in a row refused for their stamps, or with results too old for
         the filter's history, put a line in ``warnings``. From one thread at a time (the
@@ -268,7 +278,10 @@ class LiveFusion:
             speeds = [*self._speeds, *self.decoder.pending_speeds(t_cap)]
             v = float(last_speed(*np.array(speeds).T, t_cap)[0]) if speeds else math.nan
             self._provisional = None
-            if t_cap > self.stream.t_s + GLITCH_LEAD_S:
+            if t_cap > self.stream.t_s + GLITCH_LEAD_S and not t_cap - t0 <= GLITCH_LEAD_S:
+                # ahead of the bus, and a jump from the frame before (a bus that lags the camera
+                # had made every frame provisional, and a reordered frame then took back the good
+                # one before it, a review)
                 self._provisional = (t_cap, self._last_frame, self._last_estimate, self.vision.snapshot())
             self._last_frame = (t_cap, v)
         est = self.vision.estimate(image, travel_m=travel_between(v0, v, t_cap - t0))
@@ -287,8 +300,8 @@ class LiveFusion:
         if self._provisional is None:
             return False
         t_glitch, before, estimate, state = self._provisional
-        if not (t_cap > before[0] or math.isnan(before[0])):
-            return False
+        if not (t_cap > before[0] or math.isnan(before[0])) or not t_cap < t_glitch:
+            return False      # (a frame stamped as the provisional one is a repeat of it)
         glitch = self._last_estimate
         if glitch is not None and glitch.valid and not self.stream.withdraw_vision(t_glitch):
             return False     # applied already (or not queued): it stands
@@ -337,18 +350,27 @@ class LiveFusion:
             elif est.valid:
                 self._in_row["old"] = self._in_row["ahead"] = 0
             if not self._gate_said:
-                self._judge_gate(t_cap)
+                self._judge_gate()
 
-    def _judge_gate(self, t_cap: float) -> None:
+    def _judge_gate(self) -> None:
         """Say once when the filter's gate refused more than its share of the results of the last
-        :data:`VISION_REFUSED_SPAN_S` (a camera clock 0.2 s or more off the bus: the bank ended
-        1.05 deg off on the sample drive with no word, a review)."""
+        :data:`VISION_REFUSED_SPAN_S` of the bus (a camera clock 0.2 s or more off the bus: the
+        bank ended 1.05 deg off on the sample drive with no word, a review). Timed by the bus,
+        not the results' stamps (a NaN or far-future stamp handed to ``push_vision`` had stopped
+        the log's trimming for good, a review), and judged once a whole span has passed since
+        the start or a clock restart (the filter's restart refused 9 of its first 60 results, a
+        review: 15 % on a right clock)."""
+        now = self.stream.t_s
+        if not math.isfinite(now):
+            return
         c = self.stream.counts
         log = self._gate_log
-        log.append((t_cap, c["vision_used"], c["vision_rejected"]))
-        while log[0][0] < t_cap - VISION_REFUSED_SPAN_S:
+        log.append((now, c["vision_used"], c["vision_rejected"]))
+        while len(log) > 1 and log[1][0] <= now - VISION_REFUSED_SPAN_S:
             log.popleft()
-        _, used, refused = log[0]
+        t_base, used, refused = log[0]
+        if now - t_base < VISION_REFUSED_SPAN_S:
+            return
         refused = c["vision_rejected"] - refused
         line = vision_refused_warning(refused, refused + c["vision_used"] - used, f" in {VISION_REFUSED_SPAN_S:g} s")
         if line:
