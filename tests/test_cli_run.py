@@ -164,6 +164,7 @@ def test_calibration_written_and_read_back(drive, tmp_path):
     values = read_calibration(cal)
     r = vifusion("run", "--drive", drive, "--out", tmp_path / "b", "--quiet", "--no-report", "--calibration", cal)
     assert r.returncode == 0, r.stderr
+    assert f"IMU biases started from {cal}" in r.stdout.splitlines()    # (said nowhere but summary.json, a review)
     first = pd.read_csv(tmp_path / "b" / "fused.csv").iloc[0]
     for i, a in enumerate("xyz"):
         assert abs(first[f"gyro_bias_{a}_deg_s"] - values["gyro_bias_deg_s"][i]) < 0.1 * values["gyro_bias_sigma_deg_s"][i]
@@ -637,6 +638,9 @@ def test_a_debug_video_inside_out_is_refused(drive, tmp_path):
     assert vifusion("run", "--drive", drive, "--out", out, "--quiet", "--no-report").returncode == 0
     one_line_error(vifusion("run", "--drive", drive, "--out", out, "--debug-video", out / "dbg.mp4"), "inside --out")
     assert (out / "fused.csv").is_file()
+    # beside it: the line of what was written names it (it did not, as `vifusion vision`'s does, a review)
+    r = vifusion("run", "--drive", drive, "--out", out, "--debug-video", tmp_path / "dbg.mp4", "--quiet", "--no-report")
+    assert r.returncode == 0 and f"debug video {tmp_path / 'dbg.mp4'}" in r.stdout.splitlines()[0], r.stdout
 
 
 def test_campaign_refuses_before_it_replaces_anything(drive, tmp_path):
@@ -835,12 +839,14 @@ def test_time_offset_estimate_corrects_the_configured_offset(tmp_path):
         r = vifusion("run", "--drive", d, "--out", out, "--quiet", "--estimate-time-offset")
         assert r.returncode == 0, r.stderr
         results[configured] = json.loads((out / "report" / "summary.json").read_text())
+        results[configured]["stdout"] = r.stdout
     first, second = results[0.0], results[-0.2]
     assert first["time_offset"]["applied"] is True
     assert first["camera_time_offset_s"] == pytest.approx(-0.2, abs=0.05)
     assert second["time_offset"]["applied"] is False and second["camera_time_offset_s"] == pytest.approx(-0.2, abs=1e-9)
     assert abs(second["time_offset"]["offset_s"]) < 2 * second["time_offset"]["sigma_s"]
-    assert any("not applied" in w for w in second["warnings"])
+    # a correct configuration confirmed is no warning (it was one, a review), the line says it
+    assert not any("time offset" in w for w in second["warnings"]) and "not applied (within 2 sigma)" in second["stdout"]
 
 
 @pytest.mark.parametrize("fault, words", [
