@@ -845,6 +845,7 @@ def test_time_offset_estimate_corrects_the_configured_offset(tmp_path):
     assert first["camera_time_offset_s"] == pytest.approx(-0.2, abs=0.05)
     assert second["time_offset"]["applied"] is False and second["camera_time_offset_s"] == pytest.approx(-0.2, abs=1e-9)
     assert abs(second["time_offset"]["offset_s"]) < 2 * second["time_offset"]["sigma_s"]
+    assert first["time_offset"]["reason"] is None       # estimated: no reason (it was "")
     # a correct configuration confirmed is no warning (it was one, a review), the line says it
     assert not any("time offset" in w for w in second["warnings"]) and "not applied (within 2 sigma)" in second["stdout"]
 

@@ -218,7 +218,8 @@ def _run(args: argparse.Namespace) -> int:
         est = estimate_camera_offset(vision.assign(t_s=vision["t_s"] + offset_s), imu)
         applied = est.ok and abs(est.offset_s) > OFFSET_SIGNIFICANCE * est.sigma_s
         time_offset = {"offset_s": est.offset_s, "sigma_s": est.sigma_s, "correlation": est.correlation,
-                       "frames": est.n_frames, "reason": est.reason, "configured_s": offset_s, "applied": applied}
+                       "frames": est.n_frames, "reason": est.reason or None,   # null where estimated (it was "", a review)
+                       "configured_s": offset_s, "applied": applied}
         if applied:
             offset_s += est.offset_s
         elif not est.ok:   # (an estimate within 2 sigma of the configured offset confirms it: no
