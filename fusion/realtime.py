@@ -120,8 +120,8 @@ class LiveFusion:
                                 options_from_table(config.extra.get("vision"), source))
         self.stream = FusionStream(config.imu.position_m, self.has_pitch_rate, fusion_opts)
         self.samples = 0
-        #: Frames not after the previous frame (skipped), restarts of the filter on a bus clock
-        #: that went back. (IMU samples the decoder released without every gyro and
+        #: Frames not after the previous frame (skipped), frames taken back as stamp glitches
+        #: (:data:`GLITCH_LEAD_S`), restarts of the filter on a bus clock that went back. (IMU samples the decoder released without every gyro and
         #: accelerometer value are the stream's ``counts["imu_invalid"]``.)
         self.counts = dict(frames_out_of_order=0, frames_bad_time=0, frames_stamp_glitch=0, clock_restarts=0)
         self.warnings: list[str] = []
@@ -139,8 +139,8 @@ class LiveFusion:
         # the last frame, taken provisionally (GLITCH_LEAD_S): (its capture time, and the last
         # frame, last estimate and estimator state before it), or None
         self._provisional: tuple | None = None
-        # (capture time, results used, refused) at each result handed to the filter, over the
-        # last VISION_REFUSED_SPAN_S; whether the share refused was said
+        # (bus time, results used, refused) at each result handed to the filter, over the last
+        # VISION_REFUSED_SPAN_S of the bus; whether the share refused was said
         self._gate_log: deque = deque()
         self._gate_said = False
         # frames in a row refused for their stamps: not after the last one taken, too far ahead
