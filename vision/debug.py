@@ -33,9 +33,12 @@ def _pts(uv: np.ndarray) -> np.ndarray:
     return np.round(uv).astype(np.int32).reshape(-1, 1, 2)
 
 
-def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: float | None = None) -> np.ndarray:
+def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: float | None = None,
+                 t0_s: float | None = None) -> np.ndarray:
     """The debug picture of one frame (uint8 BGR): the frame and the BEV panel (half its width)
-    side by side, the estimate's text in a strip under them."""
+    side by side, the estimate's text in a strip under them; the time since ``t0_s`` (the
+    video's first frame) with the CAN clock's ``t_s`` after it (the clock alone, a Unix time of
+    ten digits, was hard to read against the plots, a review)."""
     frame = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     frame = np.ascontiguousarray(frame[..., :3]).copy()
     if frame.dtype != np.uint8:
@@ -119,7 +122,7 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
     else:
         lines.append("invalid: " + (est.reason or "?")[:70])
     if t_s is not None:
-        lines.append(f"t {t_s:.3f} s")
+        lines.append(f"t {t_s - t0_s:.3f} s (CAN clock {t_s:.3f})" if t0_s is not None else f"t {t_s:.3f} s")
     scale = max(0.5, H / 900.0)
     step = int(round(30 * scale)) + 4
     # the text in a strip under the pictures, of three lines whatever the frame says (one size
@@ -158,6 +161,7 @@ class DebugWriter:
         self.fps, self.camera = float(fps), camera
         self.writer = None
         self.size = None
+        self.t0_s: float | None = None     # the first frame's time: the strip counts from it
 
     @classmethod
     def check(cls, path: str | os.PathLike) -> Path:
@@ -171,7 +175,9 @@ class DebugWriter:
         return path
 
     def write(self, image: np.ndarray, est: VisionEstimate, t_s: float | None = None) -> None:
-        pic = render_debug(image, est, self.camera, t_s)
+        if self.t0_s is None and t_s is not None:
+            self.t0_s = t_s
+        pic = render_debug(image, est, self.camera, t_s, self.t0_s)
         if pic.shape[0] % 2 or pic.shape[1] % 2:   # the codecs take even sizes (an odd row was cut)
             pic = cv2.copyMakeBorder(pic, 0, pic.shape[0] % 2, 0, pic.shape[1] % 2, cv2.BORDER_CONSTANT)
         if self.writer is None:
