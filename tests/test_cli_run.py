@@ -73,13 +73,14 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
                                                "accel_bias_sigma_m_s2"}
     # the CAN log's totals in the run table: every IMU sample is a row of fused.csv
     counts = summary["counts"]
-    assert counts["IMU samples"] == len(fused) and counts["IMU sample rate [Hz]"] == 100.0
-    assert counts["CAN frames read"] >= counts["CAN frames decoded (IMU, speed)"] >= 2 * len(fused)
+    assert counts["imu_samples_decoded"] == len(fused) and counts["imu_rate_hz"] == 100.0
+    assert counts["can_frames_read"] >= counts["can_frames_decoded"] >= 2 * len(fused)
     # each frame read in one row (the simulated log has extra traffic of both kinds)
-    assert counts["CAN frames of the DBC's other messages"] > 0 and counts["CAN frames of IDs not in the DBC"] > 0
-    assert counts["CAN frames read"] == sum(counts[k] for k in (
-        "CAN frames decoded (IMU, speed)", "CAN frames of the DBC's other messages", "CAN frames of IDs not in the DBC",
-        "CAN error frames")), counts
+    assert counts["can_frames_other_messages"] > 0 and counts["can_frames_unknown_ids"] > 0
+    assert counts["can_frames_read"] == sum(counts[k] for k in (
+        "can_frames_decoded", "can_frames_other_messages", "can_frames_unknown_ids", "can_error_frames")), counts
+    # every key of the counts is a snake_case name (they mixed in phrases, a review)
+    assert all(k.isidentifier() and k == k.lower() for k in counts), list(counts)
     # the input files named, and the smoothed or forward estimate said
     assert summary["inputs"]["video"] == str(drive / "video.mp4") and summary["smoothed"] is False
     assert (out / "calibration.toml").is_file()

@@ -300,11 +300,13 @@ def _can_counts(can: dict) -> dict:
     rate = can.get("sample_rate_hz")
     # the read frames, each in one row (a review: "of other IDs" left out the IDs not in the DBC,
     # and the rows did not add up to the frames read)
-    return {"CAN frames read": can.get("frames_read"), "CAN frames decoded (IMU, speed)": can.get("frames_mapped"),
-            "CAN frames of the DBC's other messages": can.get("unmapped_frames"),
-            "CAN frames of IDs not in the DBC": sum((can.get("unknown_ids") or {}).values()),
-            "CAN error frames": can.get("error_frames"), "IMU samples": can.get("samples"),
-            "IMU sample rate [Hz]": round(rate, 1) if isinstance(rate, float) else rate}
+    # (snake_case keys as the filter's counts beside them: they were phrases, "IMU sample rate
+    # [Hz]", a review; can_frames_read is the sum of the four rows after it)
+    return {"can_frames_read": can.get("frames_read"), "can_frames_decoded": can.get("frames_mapped"),
+            "can_frames_other_messages": can.get("unmapped_frames"),
+            "can_frames_unknown_ids": sum((can.get("unknown_ids") or {}).values()),
+            "can_error_frames": can.get("error_frames"), "imu_samples_decoded": can.get("samples"),
+            "imu_rate_hz": round(rate, 1) if isinstance(rate, float) else rate}
 
 
 def _count_frames(video: Path) -> int:
