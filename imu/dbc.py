@@ -256,13 +256,13 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
         by_source.setdefault(key, []).append(plan)
         src_info[key] = (msg, mux)
     # the mapped signals of one message, across its multiplexer branches, with their selectors
-    by_message: dict[tuple, list] = {}
+    by_message: dict[tuple, tuple[Any, list]] = {}
     for key, plans in by_source.items():
         msg, mux = src_info[key]
-        by_message.setdefault(key[:2], []).extend(
+        by_message.setdefault(key[:2], (msg, []))[1].extend(
             [(p.signal, p.ref, mux) for p in plans] + [(c.signal, f"multiplexer {c.signal.name}", ()) for c in mux])
-    for key, signals in by_message.items():
-        _check_disjoint(signals, f"{name}: message {src_info[next(k for k in by_source if k[:2] == key)][0].name}")
+    for msg, signals in by_message.values():
+        _check_disjoint(signals, f"{name}: message {msg.name}")
     sources = []
     for key, plans in by_source.items():
         msg, mux = src_info[key]
