@@ -256,6 +256,13 @@ FRAME_PERIOD_TOLERANCE = 0.5
 VISION_VALID_WARN = 0.5
 
 
+def too_few_valid(n_valid: int, n_frames: int) -> bool:
+    """Whether a vision valid on ``n_valid`` of ``n_frames`` frames is said (under
+    :data:`VISION_VALID_WARN` of them, none among none included): the run's warning, and a
+    campaign's reason not to carry the drive's calibration."""
+    return n_valid < VISION_VALID_WARN * n_frames or not n_frames
+
+
 def vision_warnings(video, vision: pd.DataFrame, stats: dict, n_listed: int, listed_by: str) -> list[str]:
     """What a command says of the vision's result: listed frames the video did not give
     (``stats``: :func:`vision.video.estimate_video`'s; ``listed_by`` says who listed them:
@@ -267,7 +274,7 @@ def vision_warnings(video, vision: pd.DataFrame, stats: dict, n_listed: int, lis
         out.append(f"{video}: {stats['frames_read']} frames could be read; {stats['frames_missing']} of the "
                    f"{n_listed} frames {listed_by} are not among them (not processed)")
     n_valid = int(vision["valid"].sum()) if len(vision) else 0
-    if n_valid < VISION_VALID_WARN * len(vision) or not len(vision):
+    if too_few_valid(n_valid, len(vision)):
         reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts() if len(vision) else ()
         why = f" (mostly: {reasons.index[0]})" if len(reasons) else ""
         out.append(f"vision valid on {n_valid} of {len(vision)} frames{why}")

@@ -5,7 +5,7 @@ Each drive is a ``vifusion run --drive`` into ``DIR/<drive name>/`` (drives of o
 the previous good drive ended with (its ``calibration.toml``, :mod:`fusion.calibration`): at
 constant speed one curve cannot tell the lateral accelerometer bias from bank, a campaign's
 drives together can. A drive whose run warned of its vision (lanes on under half the frames,
-or the gate refusing over 10 % of the results: :func:`_vision_doubt`) runs, but does not hand
+or the gate refusing over 15 % of the results: :func:`_vision_doubt`) runs, but does not hand
 its biases on (``calibration_carried`` in the table, a line on stderr). ``DIR/campaign.csv`` (and ``.parquet``) has one row per drive: status,
 where its calibration came from, the fused bank's statistics, the RMSE against truth when the
 drive has one, and the biases it ended with. A drive that fails (missing files, bad config) is
@@ -241,18 +241,18 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
 
 def _vision_doubt(out: Path) -> str:
     """Why a drive's calibration is not handed on, or "": its run warned of its vision (valid on
-    under :data:`fusion.drive.VISION_VALID_WARN` of the frames, or more than
+    too few frames, :func:`fusion.drive.too_few_valid`, or more than
     :data:`fusion.pipeline.VISION_REFUSED_WARN` of the results refused by the gate). The biases
     are learnt against the vision; a review carried a 2 s drive's with lanes on 11 of 30 frames,
     whose yaw-rate bias ended 1.56 +- 0.30 deg/s against a truth of -0.30, and the next drive's
     bank RMSE went 0.368 -> 0.837 deg."""
     import pandas as pd
 
-    from ..drive import VISION_VALID_WARN
+    from ..drive import too_few_valid
     from ..pipeline import vision_refused_warning
 
     valid = pd.read_csv(out / "vision.csv", usecols=["valid"])["valid"].astype(bool)
-    if not len(valid) or valid.mean() < VISION_VALID_WARN:
+    if too_few_valid(int(valid.sum()), len(valid)):
         return f"vision valid on {int(valid.sum())} of {len(valid)} frames"
     summary = out / "report" / "summary.json"
     counts = json.loads(summary.read_text()).get("counts", {}) if summary.is_file() else {}
