@@ -17,8 +17,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_fusion import CACHE, DRIVES, SAMPLE, cached_full_drive, filter_inputs, run_cli  # noqa: E402
@@ -28,18 +26,18 @@ SHIFTS_S = (0.0, 0.05, 0.1, -0.1, 0.2, 0.5, -0.5)
 
 
 def refusals(drive: Path, run_dir: Path) -> list[tuple[int, int, float]]:
-    """Per shift of :data:`SHIFTS_S`: (refused, decided, bank RMSE in deg after 2 s)."""
+    """Per shift of :data:`SHIFTS_S`: (refused, decided, bank RMSE in deg after 2 s, as the
+    report scores it: :func:`fusion.metrics.rmse_table`)."""
+    from fusion.metrics import rmse_table
     from fusion.pipeline import fuse
 
     cfg, opts, imu, vision, truth = filter_inputs(drive, run_dir)
     out = []
     for shift in SHIFTS_S:
         r = fuse(imu, vision.assign(t_s=vision["t_s"] + shift), lever_arm_m=cfg.imu.position_m, options=opts)
-        t = r.fused["t_s"].to_numpy()
-        late = t > t[0] + 2.0
-        err = r.fused["bank_deg"].to_numpy()[late] - np.interp(t[late], truth["t_s"], truth["bank_deg"])
+        bank = rmse_table(r.fused, truth, float(r.fused["t_s"].iloc[0]) + 2.0, angles=("bank",))["bank"]
         refused = r.counts["vision_rejected"]
-        out.append((refused, refused + r.counts["vision_used"], float(np.sqrt(np.nanmean(err**2)))))
+        out.append((refused, refused + r.counts["vision_used"], bank))
     return out
 
 
