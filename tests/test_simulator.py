@@ -308,3 +308,15 @@ def test_a_car_on_a_banked_straight_rolls_down_the_bank():
     expected = 0.5 * GRAVITY_M_S2 * math.sin(math.radians(5.0))
     assert math.degrees(tr["roll"][0]) == pytest.approx(expected, abs=0.005)
     assert math.degrees(tr["roll_world"][0] - tr["bank"][0]) == pytest.approx(expected, abs=0.005)
+
+
+@pytest.mark.parametrize("deg", [15.0, 12.5, 7.3, -4.0, 0.1, 100.0 / 3.0])
+def test_config_angles_read_back_to_the_rendered_radians(deg):
+    """A drive's config.toml gives the mount tilt the drive was rendered with, to the bit, in its
+    shortest decimal (15.0, not math.degrees' 14.999999999999998)."""
+    from drivesim.drive import _degrees_text
+
+    rad = math.radians(deg)
+    text = _degrees_text(rad)
+    assert math.radians(float(text)) == rad
+    assert len(text) <= len(repr(deg))

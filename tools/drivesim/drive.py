@@ -133,6 +133,18 @@ def render_frames(scenario: Scenario, t_drive_s, *, road: Road | None = None, tr
         yield renderer.sensor(rad, rng) if sensor else rad
 
 
+def _degrees_text(angle_rad: float) -> str:
+    """The shortest decimal of ``angle_rad`` in degrees that reads back to the same radians:
+    a scenario's 15 deg tilt is ``15.0``, not ``math.degrees``'s ``14.999999999999998``, and the
+    config still gives the filter and the estimator the very angle the drive was rendered with."""
+    deg = math.degrees(angle_rad)
+    for digits in range(17):
+        text = repr(round(deg, digits))
+        if math.radians(float(text)) == angle_rad:
+            return text
+    return repr(deg)
+
+
 def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps: float, start_s: float) -> str:
     c, mnt, mk, imu = scenario.camera, scenario.mount, scenario.markings, scenario.imu
     lines = [
@@ -142,7 +154,7 @@ def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps
         f"fx = {c.fx!r}", f"fy = {c.fy!r}", f"cx = {c.cx!r}", f"cy = {c.cy!r}",
         f"distortion = [{', '.join(repr(float(x)) for x in c.distortion)}]",
         "", "[mount]",
-        f"height_m = {mnt.height_m!r}", f"tilt_deg = {math.degrees(mnt.tilt_rad)!r}",
+        f"height_m = {mnt.height_m!r}", f"tilt_deg = {_degrees_text(mnt.tilt_rad)}",
     ]
     if mnt.x_m:
         lines.append(f"x_m = {mnt.x_m!r}")
