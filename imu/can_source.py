@@ -86,19 +86,12 @@ class _Group:
 
 
 @dataclass
-class _SourceCount:
-    frames: int = 0
-    duplicates: int = 0
-    unaligned: int = 0
+class _Clock:
+    """Stamps on the bus clock: the span and frame intervals of the current clock and of those
+    before it (a clock reset starts a new span: the summary's rates do not mix clocks)."""
+
     last_t: float = -math.inf
-    last_payload: bytes = b""
-    gaps: list = field(default_factory=list)
-    valid: dict = field(default_factory=dict)
-    invalid: dict = field(default_factory=dict)
-    out_of_range: dict = field(default_factory=dict)
     first_t: float = math.nan
-    #: frames on the current bus clock, and the time spans and frame intervals of the clocks
-    #: before it (a clock reset starts a new span: the summary's rates do not mix clocks)
     clock_frames: int = 0
     span_before_s: float = 0.0
     intervals_before: int = 0
@@ -123,6 +116,25 @@ class _SourceCount:
 
     def intervals(self) -> int:
         return self.intervals_before + max(self.clock_frames - 1, 0)
+
+
+@dataclass
+class _SourceCount(_Clock):
+    frames: int = 0
+    duplicates: int = 0
+    unaligned: int = 0
+    last_payload: bytes = b""
+    gaps: list = field(default_factory=list)
+    valid: dict = field(default_factory=dict)
+    invalid: dict = field(default_factory=dict)
+    out_of_range: dict = field(default_factory=dict)
+    #: each channel's valid values on the clock: their rate is the log path's, ``(n - 1) / span``
+    valid_clocks: dict = field(default_factory=dict)
+
+    def new_clock(self) -> None:
+        super().new_clock()
+        for c in self.valid_clocks.values():
+            c.new_clock()
 
 
 def _rate(intervals: int, span_s: float) -> float:
@@ -197,7 +209,7 @@ class StreamDecoder:
         self.unmapped_frames = 0
         self.error_frames = 0
         self.samples = 0
-        self._samples = _SourceCount()     # the samples' time spans, per bus clock
+        self._samples = _Clock()     # the samples' time spans, per bus clock
 
     # --- frame acceptance (same order as imu.log_source._finish) ---------------------------
     def push(self, msg: can.Message, received_s: float | None = None) -> list[ImuSample]:
@@ -356,8 +368,14 @@ class StreamDecoder:
             sc.frames += 1
             sc.stamp(t)
             for j, p in enumerate(src.signals):
-                key = "valid" if valid_row[j] else "invalid"
-                getattr(sc, key)[p.channel] = getattr(sc, key).get(p.channel, 0) + 1
+                if valid_row[j]:
+                    sc.valid[p.channel] = sc.valid.get(p.channel, 0) + 1
+                    clock = sc.valid_clocks.get(p.channel)
+                    if clock is None:
+                        clock = sc.valid_clocks[p.channel] = _Clock()
+                    clock.stamp(t)
+                else:
+                    sc.invalid[p.channel] = sc.invalid.get(p.channel, 0) + 1
                 sc.out_of_range[p.channel] = sc.out_of_range.get(p.channel, 0) + oor[j]
             out.extend(self._event(si, t, si_row, valid_row, received_s))
         return out
@@ -555,14 +573,14 @@ class StreamDecoder:
         channels = []
         for si, s in enumerate(self.plan.sources):
             sc = self._src[si]
-            span = sc.span_s()
             for p in s.signals:
                 n_ok = sc.valid.get(p.channel, 0)
+                clock = sc.valid_clocks.get(p.channel)
                 channels.append(ChannelStats(
                     channel=p.channel, column=col_of[p.channel], ref=p.ref, unit=p.unit,
                     decoded=n_ok, invalid=sc.invalid.get(p.channel, 0),
                     out_of_range=sc.out_of_range.get(p.channel, 0),
-                    rate_hz=n_ok / span if n_ok > 1 and span > 0 else math.nan,  # valid values per second
+                    rate_hz=_rate(clock.intervals(), clock.span_s()) if clock else math.nan,  # valid values per second
                 ))
         span = self._samples.span_s()
         return Summary(

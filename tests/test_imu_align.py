@@ -152,6 +152,27 @@ def test_live_summary_after_a_clock_reset(tmp_path):
     assert s.sample_rate_hz == pytest.approx(one.sample_rate_hz, rel=0.01)
     for a, b in zip(s.sources, one.sources):
         assert a.rate_hz == pytest.approx(b.rate_hz, rel=0.02), a.name
+    for a, b in zip(s.channels, one.channels):
+        assert a.rate_hz == pytest.approx(b.rate_hz, rel=0.02), a.channel
+
+
+def test_live_summary_rates_are_the_logs(tmp_path):
+    """The live decoder's summary gives each source's and channel's rate as the log path's does,
+    ``(n - 1) / span`` (its channels had said ``n / span``: 100.0833 Hz for a 100 Hz IMU over
+    12 s, where `vifusion can` said 100.0)."""
+    imu, speed = sim_imu(duration_s=3.0, seed=4)
+    path = tmp_path / "drive.blf"
+    write_can_log(path, imu, speed)
+    _, one = read_log(path, sim_mapping(), MOUNT_FRD)
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    for m in iter_messages(path):
+        dec.push(m)
+    dec.flush()
+    s = dec.summary()
+    assert s.sample_rate_hz == pytest.approx(one.sample_rate_hz, rel=1e-9)
+    assert [c.channel for c in s.channels] == [c.channel for c in one.channels]
+    for a, b in zip(s.channels, one.channels):
+        assert a.decoded == b.decoded and a.rate_hz == pytest.approx(b.rate_hz, rel=1e-9), a.channel
 
 
 def test_frames_of_different_ids_out_of_order(tmp_path):
