@@ -530,3 +530,36 @@ def test_vertical_curvature_on_a_banked_curve_against_the_truth():
     assert np.all(np.abs(z) < 3.0), z
     assert 0.4 < float(np.sqrt(np.mean(z**2))) < 2.0, z
     assert np.all(np.abs(got - want)[1:] < 0.05 * np.abs(want[1:])), (got, want)
+
+
+def test_debug_bev_panel_is_drawn_at_the_roads_proportions(two_lines):
+    """The debug video's bird's-eye panel shows a metre ahead as long as a metre across: on the
+    level straight the two edge lines' fits stand two lanes apart (7 m, centre to centre of the
+    markers: the road has no centre line) against the cross-sections' span in metres, to 5 %
+    (a pixel or two of the panel's rendering over some 100). Drawn a pixel for a grid cell (rows 0.1 m,
+    columns a few cm) the panel had been a strip a quarter of its height."""
+    from vision.debug import YELLOW, render_debug
+
+    sc, road, images, truth = two_lines
+    est = Estimator(sc.camera, sc.mount, road=road).estimate(images[0], truth_rpy(truth, 0), keep_debug=True)
+    assert est.valid and est.n_lines == 2, est.reason
+    pic = render_debug(images[0], est, sc.camera)
+    W = sc.camera.width
+    panel = pic[:sc.camera.height, W:].astype(int)
+
+    yellow = np.all(np.abs(panel - np.array(YELLOW)) < 40, axis=2)
+    rows = np.flatnonzero(yellow.sum(axis=1) > 0.5 * panel.shape[1])
+    v = np.sort(np.asarray(est.debug.cross_rows_v, dtype=float))
+    span_m = (v[-1] - v[0]) * est.debug.bev.grid.dx_m
+    span_px = rows.max() - rows.min()
+    # a row between two cross-sections; the edges drawn anti-aliased: a channel over the others
+    y = next(r for r in range((rows.max() + rows.min()) // 2, rows.max()) if r not in rows)
+    b, g, r = panel[y, :, 0], panel[y, :, 1], panel[y, :, 2]
+    green, red = np.flatnonzero(g > np.maximum(r, b) + 40), np.flatnonzero(r > np.maximum(g, b) + 40)
+    assert len(green) >= 2 and len(red) >= 2, (green, red)
+    # each line's centre: the mean of its left (green) and right (red) edge; two lines
+    left_line = (green.min() + red.min()) / 2.0
+    right_line = (green.max() + red.max()) / 2.0
+    lane_px = right_line - left_line
+    assert not road.center_line
+    assert lane_px / span_px == pytest.approx(2 * road.lane_width_m / span_m, rel=0.05), (lane_px, span_px, span_m)

@@ -4,8 +4,9 @@ beside the BEV with the fitted edges and the cross-sections.
 Left panel (the camera frame): the edges of the markers used (green left edges, red right
 edges; blue for markers found but not used), the image lines of the paper's vanishing point
 when it used them (yellow), the vanishing point (magenta cross) and the horizon of the road
-plane at the estimated pose (cyan). Right panel (the BEV the markers were found in, scaled to
-the frame's height): the edge fits and the cross-sections (yellow rows). Text: the angles,
+plane at the estimated pose (cyan). Right panel (the BEV the markers were found in, at the
+road's proportions, a metre ahead as long as a metre across, fitted into the panel): the edge
+fits, the cross-sections (yellow rows) and the camera's nadir (magenta dot). Text: the angles,
 their 1-sigma, the validity (or why not), the time.
 """
 
@@ -69,10 +70,19 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
                     cv2.polylines(frame, [_pts(uv[good])], False, col, 1, cv2.LINE_AA)
         for a, b in getattr(dbg, "image_lines", []) or []:
             cv2.line(frame, tuple(int(round(x)) for x in a), tuple(int(round(x)) for x in b), YELLOW, 1, cv2.LINE_AA)
-        # BEV panel with the fits and the cross-sections.
+        # BEV panel with the fits and the cross-sections, drawn at the road's proportions: the
+        # grid's rows are 0.1 m and its columns 1-4 cm, and shown a pixel for a cell it had been
+        # a strip a quarter of the panel's height, the lines' angles exaggerated several times
         img = dbg.bev_image
         if img is not None:
-            b = cv2.cvtColor(np.clip(img, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
+            g = bev.grid
+            PH, PW = bev_panel.shape[:2]
+            h, w = img.shape[:2]
+            scale = min(PH / (h * g.dx_m), PW / (w * g.dy_m))     # panel pixels per metre
+            bw, bh = max(1, min(PW, int(round(w * g.dy_m * scale)))), max(1, min(PH, int(round(h * g.dx_m * scale))))
+            sx, sy = bw / w, bh / h
+            small = cv2.resize(np.clip(img, 0, 255).astype(np.uint8), (bw, bh), interpolation=cv2.INTER_AREA)
+            b = cv2.cvtColor(small, cv2.COLOR_GRAY2BGR)
             for i, m in enumerate(dbg.markers):
                 used = i in dbg.used
                 vv = np.arange(int(m.v_far), int(m.v_near) + 1, dtype=float)
@@ -80,17 +90,15 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
                     continue
                 ul, ur = m.u_at(vv)
                 for u, col in ((ul, GREEN if used else BLUE), (ur, RED if used else BLUE)):
-                    cv2.polylines(b, [_pts(np.stack([u, vv], -1))], False, col, 1, cv2.LINE_AA)
+                    cv2.polylines(b, [_pts(np.stack([(u + 0.5) * sx, (vv + 0.5) * sy], -1))], False, col, 1, cv2.LINE_AA)
             if dbg.cross_rows_v is not None:
                 for v in np.atleast_1d(dbg.cross_rows_v):
-                    if np.isfinite(v) and 0 <= v < b.shape[0]:
-                        cv2.line(b, (0, int(round(v))), (b.shape[1] - 1, int(round(v))), YELLOW, 1)
-            cv2.circle(b, (int(round(bev.u0)), b.shape[0] - 1), 4, MAGENTA, -1)
-            PH, PW = bev_panel.shape[:2]
-            scale = min(PH / b.shape[0], PW / b.shape[1])
-            bw, bh = max(1, min(PW, int(round(b.shape[1] * scale)))), max(1, min(PH, int(round(b.shape[0] * scale))))
+                    if np.isfinite(v) and 0 <= v < h:
+                        y = int((v + 0.5) * sy)
+                        cv2.line(b, (0, y), (bw - 1, y), YELLOW, 1)
+            cv2.circle(b, (int(round((bev.u0 + 0.5) * sx)), bh - 1), 4, MAGENTA, -1)
             x0, y0 = (PW - bw) // 2, (PH - bh) // 2
-            bev_panel[y0:y0 + bh, x0:x0 + bw] = cv2.resize(b, (bw, bh), interpolation=cv2.INTER_NEAREST)
+            bev_panel[y0:y0 + bh, x0:x0 + bw] = b
     # Vanishing point and horizon.
     if est.valid and all(math.isfinite(v) for v in est.vp_px):
         vx, vy = est.vp_px
