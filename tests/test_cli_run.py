@@ -691,11 +691,11 @@ def test_campaign_interrupted_after_a_drive_finished_says_it_ran(drive, tmp_path
     shutil.copytree(drive, second)
     real, calls = campaign._drive_row, []
 
-    def interrupted_on_the_second(fused, out):
-        calls.append(out)
+    def interrupted_on_the_second(fused, summary):
+        calls.append(summary)
         if len(calls) == 2:
             raise KeyboardInterrupt
-        return real(fused, out)
+        return real(fused, summary)
 
     monkeypatch.setattr(campaign, "_drive_row", interrupted_on_the_second)
     out = tmp_path / "camp"

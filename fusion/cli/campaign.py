@@ -213,7 +213,8 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
         return calibration
     try:
         fused = pd.read_csv(out / "fused.csv")
-        row.update(status="ok", **_drive_row(fused, out))
+        summary = _read_summary(out)
+        row.update(status="ok", **_drive_row(fused, summary))
     except KeyboardInterrupt:   # the drive's folder is complete: its row says so
         rows.append({**row, "status": "ok (interrupted before its figures were read)"})
         raise
@@ -225,7 +226,7 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
         cal = read_calibration(out / "calibration.toml")
         line += (f"; lateral accelerometer bias {cal['accel_bias_m_s2'][1]:+.4f} "
                  f"+- {cal['accel_bias_sigma_m_s2'][1]:.4f} m/s^2")
-        doubt = _vision_doubt(out)
+        doubt = _vision_doubt(out, summary)
         if doubt and not args.no_carry:
             print(f"warning: {drive}: its calibration is not carried ({doubt}: the biases rest on the vision): "
                   f"the next drive starts from {calibration[0] if calibration else 'the config'}", file=sys.stderr)
@@ -239,7 +240,13 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
     return calibration
 
 
-def _vision_doubt(out: Path) -> str:
+def _read_summary(out: Path) -> dict:
+    """A drive's ``report/summary.json`` ({} when the run wrote no report)."""
+    summary = out / "report" / "summary.json"
+    return json.loads(summary.read_text()) if summary.is_file() else {}
+
+
+def _vision_doubt(out: Path, summary: dict) -> str:
     """Why a drive's calibration is not handed on, or "": its run warned of its vision (valid on
     too few frames, :func:`fusion.drive.too_few_valid`, or more than
     :data:`fusion.pipeline.VISION_REFUSED_WARN` of the results refused by the gate). The biases
@@ -254,16 +261,16 @@ def _vision_doubt(out: Path) -> str:
     valid = pd.read_csv(out / "vision.csv", usecols=["valid"])["valid"].astype(bool)
     if too_few_valid(int(valid.sum()), len(valid)):
         return f"vision valid on {int(valid.sum())} of {len(valid)} frames"
-    summary = out / "report" / "summary.json"
-    counts = json.loads(summary.read_text()).get("counts", {}) if summary.is_file() else {}
+    counts = summary.get("counts", {})
     refused, used = counts.get("vision_rejected", 0), counts.get("vision_used", 0)
     if vision_refused_warning(refused, refused + used):
         return f"the gate refused {refused} of {refused + used} vision results"
     return ""
 
 
-def _drive_row(fused, out: Path) -> dict:
-    """Bank statistics, the RMSE against truth when the run had one, the final biases."""
+def _drive_row(fused, summary: dict) -> dict:
+    """Bank statistics, the RMSE against truth when the run had one (its ``summary``), the final
+    biases."""
     import numpy as np
 
     bank = fused["bank_deg"].to_numpy()
@@ -272,12 +279,10 @@ def _drive_row(fused, out: Path) -> dict:
            "bank_mean_deg": float(np.mean(bank[known])) if known.any() else math.nan,
            "bank_abs_max_deg": float(np.max(np.abs(bank[known]))) if known.any() else math.nan,
            "bank_sigma_median_deg": float(np.median(fused["bank_sigma_deg"].to_numpy()[known])) if known.any() else math.nan}
-    summary = out / "report" / "summary.json"
-    if summary.is_file():
-        data = json.loads(summary.read_text())
+    if summary:
         # the run's own warnings (no valid vision, an incomplete log, gaps...): 'ok' means it ran
-        row["warnings"] = " | ".join(data.get("warnings") or [])
-        fusedrmse = (data.get("rmse_deg") or {}).get("fused") or {}
+        row["warnings"] = " | ".join(summary.get("warnings") or [])
+        fusedrmse = (summary.get("rmse_deg") or {}).get("fused") or {}
         for a in ("roll", "pitch", "yaw", "bank"):
             if isinstance(fusedrmse.get(a), (int, float)) and math.isfinite(fusedrmse[a]):   # null: none
                 row[f"{a}_rmse_deg"] = fusedrmse[a]
