@@ -244,7 +244,7 @@ def without_pitch_gyro(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[dic
 BIAS_DRAWS = 50
 
 
-def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS) -> dict:
+def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS, has_pitch_rate: bool = True) -> dict:
     """The forward filter on the run's vision and the drive's CAN log with the accelerometer's
     bias replaced by ``n`` draws from the datasheet's 1-sigma that the drive's config gives the
     filter (``[fusion] accel_bias_sigma_m_s2``; the decoded specific force shifted by the draw
@@ -253,7 +253,8 @@ def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS) -> dict:
     be told from bank (0.05 m/s^2 is 0.29 deg): its figures are one draw's. Returns the NEES
     share in band pooled over the draws (and below it), and the bank RMSE after 2 s over the
     draws: median, 90th percentile, largest, share within the bar; and per angle (roll, pitch,
-    yaw, bank) the share of samples whose error is within 2 sigma (0.954 for a consistent one)."""
+    yaw, bank) the share of samples whose error is within 2 sigma (0.954 for a consistent one).
+    ``has_pitch_rate`` False: the same draws with the pitch-rate channel left out."""
     from fusion.metrics import consistency, rmse_table
     from fusion.pipeline import fuse
 
@@ -267,7 +268,7 @@ def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS) -> dict:
     for _ in range(n):
         shift = rng.normal(0.0, sigma) - simulated
         shifted = imu.assign(**{f"accel_{a}_m_s2": imu[f"accel_{a}_m_s2"] + shift[i] for i, a in enumerate("xyz")})
-        run = fuse(shifted, vision, lever_arm_m=cfg.imu.position_m, options=opts)
+        run = fuse(shifted, vision, lever_arm_m=cfg.imu.position_m, options=opts, has_pitch_rate=has_pitch_rate)
         c = consistency(run.fused, truth, run.cov, t_min_s=t0 + 2.0)
         inside.append(c.fraction_inside)
         below.append(c.fraction_below)
@@ -523,7 +524,8 @@ def main(argv=None) -> int:
         rows.append((name, acc, summ_s["rmse_deg"]["fused"], summ["consistency"]["fraction_inside"],
                      summ_s["consistency"]["fraction_inside"], loss_max, recover, recover_bar))
         view_rows.append((name, road_in_view(drive, out)))
-        no_q_rows.append((name, *without_pitch_gyro(drive, out, t_loss_s=8.0)))
+        no_q_rows.append((name, *without_pitch_gyro(drive, out, t_loss_s=8.0),
+                          bias_draws(drive, out, has_pitch_rate=False)))
         draw_rows.append((name, bias_draws(drive, out)))
         offset_rows.append((name, time_offsets(drive, out)))
         sigma_rows.append((name, vision_sigmas(drive, out, FusionOptions().noise)))
@@ -595,10 +597,13 @@ def main(argv=None) -> int:
         print(f"{name:<26} {sig:>14} {100 * d['inside']:12.1f}% {100 * d['below']:5.1f}% {med:12.3f} {p90:6.3f} "
               f"{worst:6.3f} {100 * share:10.0f}%   " + " / ".join(f"{100 * w:.0f}" for w in d["within_2_sigma"]) + " %")
     print()
-    print("Without a pitch gyro (MM5.10: q = r tan(roll)), forward filter, the same vision and CAN log")
-    for name, vals, loss in no_q_rows:
+    print("Without a pitch gyro (MM5.10: q = r tan(roll)), forward filter, the same vision and CAN log; and the bank")
+    print(f"over the accelerometer-bias draws above (the same {BIAS_DRAWS} draws): median / 90th percentile / within 0.3 deg")
+    for name, vals, loss, d in no_q_rows:
         cells = " ".join(f"{vals[a]:7.3f}" for a in ("roll", "pitch", "yaw", "bank"))
-        print(f"{name:<26} {'fused, no pitch gyro':<22} {cells}   lane loss: max roll err {loss:.2f} deg")
+        med, p90, _, share = d["bank"]
+        print(f"{name:<26} {'fused, no pitch gyro':<22} {cells}   lane loss: max roll err {loss:.2f} deg   "
+              f"draws: {med:.3f} / {p90:.3f} / {100 * share:.0f}%")
     print()
     print(f"{'drive':<26} {'NEES in 95% band fwd':>22} {'smoothed':>10} {'lane loss: max roll err':>24} "
           f"{'recovery: 2x RMSE':>18} {str(BARS['roll']) + ' deg':>9}")
