@@ -6,8 +6,8 @@ edges; blue for markers found but not used), the image lines of the paper's vani
 when it used them (yellow), the vanishing point (magenta cross) and the horizon of the road
 plane at the estimated pose (cyan). Right panel (the BEV the markers were found in, at the
 road's proportions, a metre ahead as long as a metre across, fitted into the panel): the edge
-fits, the cross-sections (yellow rows) and the camera's nadir (magenta dot). Text: the angles,
-their 1-sigma, the validity (or why not), the time.
+fits, the cross-sections (yellow rows) and the camera's centre line at the BEV's near edge
+(magenta dot). Text: the angles, their 1-sigma, the validity (or why not), the time.
 """
 
 from __future__ import annotations
@@ -74,15 +74,25 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
         # grid's rows are 0.1 m and its columns 1-4 cm, and shown a pixel for a cell it had been
         # a strip a quarter of the panel's height, the lines' angles exaggerated several times
         img = dbg.bev_image
-        if img is not None:
+        if img is not None and img.size:
             g = bev.grid
             PH, PW = bev_panel.shape[:2]
             h, w = img.shape[:2]
             scale = min(PH / (h * g.dx_m), PW / (w * g.dy_m))     # panel pixels per metre
             bw, bh = max(1, min(PW, int(round(w * g.dy_m * scale)))), max(1, min(PH, int(round(h * g.dx_m * scale))))
             sx, sy = bw / w, bh / h
-            small = cv2.resize(np.clip(img, 0, 255).astype(np.uint8), (bw, bh), interpolation=cv2.INTER_AREA)
-            b = cv2.cvtColor(small, cv2.COLOR_GRAY2BGR)
+
+            def to_panel(u, v):
+                """BEV pixel (column, row) to the resized picture's (cv2.resize's pixel centres)."""
+                return (np.asarray(u) + 0.5) * sx - 0.5, (np.asarray(v) + 0.5) * sy - 0.5
+
+            # the columns shrink and the rows grow: in two steps, as INTER_AREA averages only
+            # where both shrink (one step read two source columns, a thin marker's brightness
+            # anywhere from 0 to its full)
+            grey = np.clip(img, 0, 255).astype(np.uint8)
+            grey = cv2.resize(grey, (bw, h), interpolation=cv2.INTER_AREA)
+            grey = cv2.resize(grey, (bw, bh), interpolation=cv2.INTER_AREA if bh < h else cv2.INTER_LINEAR)
+            b = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
             for i, m in enumerate(dbg.markers):
                 used = i in dbg.used
                 vv = np.arange(int(m.v_far), int(m.v_near) + 1, dtype=float)
@@ -90,13 +100,15 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
                     continue
                 ul, ur = m.u_at(vv)
                 for u, col in ((ul, GREEN if used else BLUE), (ur, RED if used else BLUE)):
-                    cv2.polylines(b, [_pts(np.stack([(u + 0.5) * sx, (vv + 0.5) * sy], -1))], False, col, 1, cv2.LINE_AA)
+                    cv2.polylines(b, [_pts(np.stack(to_panel(u, vv), -1))], False, col, 1, cv2.LINE_AA)
             if dbg.cross_rows_v is not None:
                 for v in np.atleast_1d(dbg.cross_rows_v):
-                    if np.isfinite(v) and 0 <= v < h:
-                        y = int((v + 0.5) * sy)
-                        cv2.line(b, (0, y), (bw - 1, y), YELLOW, 1)
-            cv2.circle(b, (int(round((bev.u0 + 0.5) * sx)), bh - 1), 4, MAGENTA, -1)
+                    if np.isfinite(v):
+                        y = int(round(float(to_panel(0.0, v)[1])))
+                        if 0 <= y < bh:
+                            cv2.line(b, (0, y), (bw - 1, y), YELLOW, 1)
+            # the camera's centre line (lateral 0) at the BEV's near edge, x_min ahead of the nadir
+            cv2.circle(b, (int(round(float(to_panel(bev.u0, 0.0)[0]))), bh - 1), 4, MAGENTA, -1)
             x0, y0 = (PW - bw) // 2, (PH - bh) // 2
             bev_panel[y0:y0 + bh, x0:x0 + bw] = b
     # Vanishing point and horizon.

@@ -136,7 +136,9 @@ def render_frames(scenario: Scenario, t_drive_s, *, road: Road | None = None, tr
 def _degrees_text(angle_rad: float) -> str:
     """The shortest decimal of ``angle_rad`` in degrees that reads back to the same radians:
     a scenario's 15 deg tilt is ``15.0``, not ``math.degrees``'s ``14.999999999999998``, and the
-    config still gives the filter and the estimator the very angle the drive was rendered with."""
+    config still gives the filter and the estimator the very angle the drive was rendered with.
+    An angle no rounding of its degrees reads back to (not one a scenario's degrees give) is
+    written as ``repr(math.degrees(angle_rad))``, within a float's rounding of it."""
     deg = math.degrees(angle_rad)
     for digits in range(17):
         text = repr(round(deg, digits))
