@@ -536,11 +536,12 @@ def test_debug_bev_panel_is_drawn_at_the_roads_proportions(two_lines):
     """The debug video's bird's-eye panel shows a metre ahead as long as a metre across: on the
     level straight the two edge lines' fits stand two lanes apart (7 m, centre to centre of the
     markers: the road has no centre line) against the cross-sections' span in metres, to 5 %
-    (a pixel or two of the panel's rendering over some 100). Drawn a pixel for a grid cell (rows 0.1 m,
-    columns a few cm) the panel had been a strip a quarter of its height."""
+    (a pixel or two of the panel's rendering over some 100). Drawn a pixel for a grid cell
+    (rows 0.1 m, columns a few cm) the panel had been a strip a quarter of its height."""
     from vision.debug import YELLOW, render_debug
 
     sc, road, images, truth = two_lines
+    assert not road.center_line
     est = Estimator(sc.camera, sc.mount, road=road).estimate(images[0], truth_rpy(truth, 0), keep_debug=True)
     assert est.valid and est.n_lines == 2, est.reason
     pic = render_debug(images[0], est, sc.camera)
@@ -562,5 +563,4 @@ def test_debug_bev_panel_is_drawn_at_the_roads_proportions(two_lines):
     left_line = (green.min() + red.min()) / 2.0
     right_line = (green.max() + red.max()) / 2.0
     lane_px = right_line - left_line
-    assert not road.center_line
     assert lane_px / span_px == pytest.approx(2 * road.lane_width_m / span_m, rel=0.05), (lane_px, span_px, span_m)
