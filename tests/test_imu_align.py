@@ -12,6 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drivesim.canlog import DBC_PATH, write_can_log
+from drivesim.canlog import _with_crc as with_crc
 from imu import COLUMNS, ImuError, StreamDecoder, iter_messages, load_dbc, read_log, samples_frame
 from test_imu_common import COMMA, MOUNT_FRD, comma_mapping, sim_imu, sim_mapping
 
@@ -174,6 +175,37 @@ def test_live_summary_rates_are_the_logs(tmp_path):
     for a, b in zip(s.channels, one.channels):
         assert a.decoded == b.decoded and a.rate_hz == pytest.approx(b.rate_hz, rel=1e-9), a.channel
 
+
+
+def test_live_summary_rate_of_a_channel_with_invalid_values(tmp_path):
+    """A wheel speed that reads SNA (0xFFFF, outside the DBC range) for its first second: the
+    channel's rate is that of its valid values, 50 Hz as sent, live as in the log path (the
+    live decoder took a channel's span from its source, every frame: 99 values over 2.96 s
+    would be 33 Hz)."""
+    imu, speed = sim_imu(duration_s=3.0, seed=4)
+    clean = tmp_path / "clean.blf"
+    write_can_log(clean, imu, speed)
+    msgs = list(iter_messages(clean))
+    t0 = msgs[0].timestamp
+    speed_id = load_dbc(DBC_PATH).get_message_by_name("ABS_SPEED").frame_id
+    path = tmp_path / "sna.blf"
+    with can.Logger(path) as w:
+        for m in msgs:
+            if m.arbitration_id == speed_id and m.timestamp - t0 < 1.0:
+                m.data = bytearray(with_crc(bytes([0xFF, 0xFF]) + bytes(m.data[2:])))   # front wheel SNA
+            w.on_message_received(m)
+    _, one = read_log(path, sim_mapping(), MOUNT_FRD)
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    for m in iter_messages(path):
+        dec.push(m)
+    dec.flush()
+    log_speed = next(c for c in one.channels if c.channel == "speed")
+    live_speed = next(c for c in dec.summary().channels if c.channel == "speed")
+    assert (log_speed.decoded, log_speed.invalid) == (99, 50)
+    # sent every 20 ms on a microsecond grid: 50 Hz to the grid's rounding
+    assert log_speed.rate_hz == pytest.approx(50.0, rel=1e-6)
+    assert (live_speed.decoded, live_speed.invalid) == (99, 50)
+    assert live_speed.rate_hz == pytest.approx(log_speed.rate_hz, rel=1e-9)
 
 def test_frames_of_different_ids_out_of_order(tmp_path):
     """A log merged from two buses: each IMU acceleration frame (0.35 ms after its rate frame)
