@@ -58,13 +58,18 @@ __all__ = ["LiveFusion"]
 #: or before the last one taken (stepped back), too far ahead of the bus, or too old for the
 #: filter's history.
 CLOCK_BACK_WARN_FRAMES = 30
-#: A frame stamped this far ahead of the newest IMU sample and of the frame before it (s) is
-#: taken provisionally: should the next frame come stamped before it, and after the frame
-#: before it, its stamp was a glitch and it is taken back (:meth:`LiveFusion.push_frame`). A
-#: frame is normally stamped at or behind the bus (handed in after its capture) or a bus
-#: latency ahead, and a frame period after the one before it. Not handled: two glitches in a
-#: row, and a glitch before the first IMU sample (the bus has no time yet).
+#: A frame stamped this far ahead of the newest IMU sample (or before the first one) and of the
+#: frame before it (s) is taken provisionally, and so are the frames after it that stay this far
+#: ahead of the bus (a glitch of several frames): should a frame then come stamped before them,
+#: and after the frame before the first of them, their stamps were a glitch and they are taken
+#: back (:meth:`LiveFusion.push_frame`). A frame is normally stamped at or behind the bus
+#: (handed in after its capture) or a bus latency ahead, and a frame period after the one before
+#: it.
 GLITCH_LEAD_S = 0.1
+#: Frames taken provisionally in a row at most (a third of a second at 30 fps): a longer run is
+#: the camera's clock that jumped ahead, and its frames are kept for good (a frame stamped
+#: between two of them, reordered, would otherwise take back the ones after it).
+MAX_GLITCH_FRAMES = 10
 #: The span of the bus clock (s) over which the share of the results the filter's gate refused
 #: is judged live, once it has passed since the start or a clock restart
 #: (:data:`fusion.pipeline.VISION_REFUSED_WARN`; offline: the whole drive).
@@ -136,9 +141,9 @@ class LiveFusion:
         self._speeds: deque = deque(maxlen=256)    # recent fresh wheel speeds: (t_s, m/s)
         self._last_frame = (math.nan, math.nan)    # the last frame: (t_s, speed then)
         self._last_estimate: VisionEstimate | None = None
-        # the last frame, taken provisionally (GLITCH_LEAD_S): (its capture time, and the last
-        # frame, last estimate and estimator state before it), or None
-        self._provisional: tuple | None = None
+        # the last frames, taken provisionally (GLITCH_LEAD_S), oldest first: for each, its capture
+        # time, and the last frame, last estimate and estimator state before it
+        self._provisional: list[tuple] = []
         # (bus time, results used, refused) at each result handed to the filter, over the last
         # VISION_REFUSED_SPAN_S of the bus; whether the share refused was said
         self._gate_log: deque = deque()
@@ -239,8 +244,9 @@ class LiveFusion:
         (``stream.counts["vision_future"]``: a bad stamp, a camera clock that stepped), is
         refused before the estimator, and does not hold back the frames after it: an invalid
         estimate whose ``reason`` says why is returned. A frame stamped ahead of the bus and of the frame
-        before it by more than :data:`GLITCH_LEAD_S` is taken provisionally: the next frame stamped before it (and
-        after the frame before it) takes it back as a stamp glitch (:meth:`_take_back_glitch`).
+        before it by more than :data:`GLITCH_LEAD_S` is taken provisionally, with the frames after it that stay
+        that far ahead (up to :data:`MAX_GLITCH_FRAMES`): the next frame stamped before them (and after the
+        frame before them) takes them back as a stamp glitch (:meth:`_take_back_glitch`).
         Thirty frames in a row refused for their stamps, or with results too old for
         the filter's history, put a line in ``warnings``. From one thread at a time (the
         estimator keeps the road map between frames)."""
@@ -277,12 +283,14 @@ class LiveFusion:
             # which the road-twist map turned into other angles on 550 of 600 frames, a review)
             speeds = [*self._speeds, *self.decoder.pending_speeds(t_cap)]
             v = float(last_speed(*np.array(speeds).T, t_cap)[0]) if speeds else math.nan
-            self._provisional = None
-            if t_cap > self.stream.t_s + GLITCH_LEAD_S and not t_cap - t0 <= GLITCH_LEAD_S:
-                # ahead of the bus, and a jump from the frame before (a bus that lags the camera
-                # had made every frame provisional, and a reordered frame then took back the good
-                # one before it, a review)
-                self._provisional = (t_cap, self._last_frame, self._last_estimate, self.vision.snapshot())
+            # ahead of the bus (or no bus time yet), and a jump from the frame before or after a
+            # provisional one (a bus that lags the camera had made every frame provisional, and a
+            # reordered frame then took back the good one before it, a review)
+            if (not t_cap <= self.stream.t_s + GLITCH_LEAD_S and (not t_cap - t0 <= GLITCH_LEAD_S or self._provisional)
+                    and len(self._provisional) < MAX_GLITCH_FRAMES):
+                self._provisional.append((t_cap, self._last_frame, self._last_estimate, self.vision.snapshot()))
+            else:
+                self._provisional.clear()
             self._last_frame = (t_cap, v)
         est = self.vision.estimate(image, travel_m=travel_between(v0, v, t_cap - t0))
         self._last_estimate = est
@@ -290,25 +298,34 @@ class LiveFusion:
         return est
 
     def _take_back_glitch(self, t_cap: float) -> bool:
-        """Whether the last frame taken was a stamp glitch, and then take it back: it was taken
-        provisionally, stamped ahead of the bus, this frame comes stamped before it and after the
-        frame before it, and its result still waits for the IMU (or was invalid). The filter, the estimator's
-        state and the last frame are then as if it had not come (counted in
-        ``counts["frames_stamp_glitch"]``). Before, one frame stamped 0.4 s ahead held back the
-        twelve after it as out of order, and its travel moved the road-twist map 0.4 s ahead (a
-        review)."""
-        if self._provisional is None:
-            return False
-        t_glitch, before, estimate, state = self._provisional
-        if not (t_cap > before[0] or math.isnan(before[0])) or not t_cap < t_glitch:
-            return False      # (a frame stamped as the provisional one is a repeat of it)
-        glitch = self._last_estimate
-        if glitch is not None and glitch.valid and not self.stream.withdraw_vision(t_glitch):
-            return False     # applied already (or not queued): it stands
-        # (an invalid result never reached the filter; its count in vision_invalid stays)
+        """Whether the last frames taken were a stamp glitch, and then take them back: they were
+        taken provisionally (ahead of the bus), this frame comes stamped before the first of them
+        and after the frame before it, and that first one's result still waits for the IMU (or
+        was invalid). The filter, the estimator's state and the last frame are then as if they
+        had not come (counted in ``counts["frames_stamp_glitch"]``). Before, one frame stamped
+        0.4 s ahead held back the twelve after it as out of order, and its travel moved the
+        road-twist map 0.4 s ahead (a review); two in a row, or one before the first IMU sample,
+        still did (the twentieth session's list)."""
+        chain = self._provisional
+        k = next((i for i, (t_glitch, before, _, _) in enumerate(chain)
+                  if t_cap < t_glitch and (t_cap > before[0] or math.isnan(before[0]))), None)
+        if k is None:
+            return False      # (a frame stamped as a provisional one is a repeat of it)
+        # each provisional frame's own result: the next one's "last estimate before", the newest's the last
+        own = [entry[2] for entry in chain[k + 1:]] + [self._last_estimate]
+        first = True
+        for (t_glitch, *_), glitch in zip(chain[k:], own):
+            if glitch is None or not glitch.valid:
+                continue         # never reached the filter (its count in vision_invalid stays)
+            # results are applied in time order: when the first still waits, so do the rest
+            if not self.stream.withdraw_vision(t_glitch) and first:
+                return False     # applied already (or not queued): they stand
+            first = False
+        _, before, estimate, state = chain[k]
         self.vision.restore(state)
-        self._last_frame, self._last_estimate, self._provisional = before, estimate, None
-        self.counts["frames_stamp_glitch"] += 1
+        self._last_frame, self._last_estimate = before, estimate
+        self.counts["frames_stamp_glitch"] += len(chain) - k
+        del chain[k:]
         return True
 
     def push_vision(self, t_s: float, est: VisionEstimate) -> None:

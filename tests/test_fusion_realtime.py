@@ -16,7 +16,7 @@ import pytest
 from fusion.config import load_config
 from fusion.options import fusion_options_from_table
 from fusion.pipeline import frame_speeds, fuse
-from fusion.realtime import LiveFusion
+from fusion.realtime import MAX_GLITCH_FRAMES, LiveFusion
 from imu import read_log
 from vision.options import options_from_table
 from vision.video import FrameSource, estimate_video
@@ -356,11 +356,17 @@ def test_the_embedding_example_ends_on_a_bus_gap_or_a_glitch(tmp_path, fault):
     assert samples >= (1201 - 45 if fault == "gap" else 1200), r.stdout[-300:]
 
 
-def _live_run(sample_offline, frame_times):
+def _live_run(sample_offline, frame_times, before_bus: int = 0):
     """The sample drive through LiveFusion, each frame's result handed in 80 ms after capture;
-    ``frame_times(n, t)``: the stamps frame ``n`` (from 1) is pushed with."""
+    ``frame_times(n, t)``: the stamps frame ``n`` (from 1) is pushed with; the first
+    ``before_bus`` frames are handed in before the first CAN message."""
     cfg, messages, frames, _, truth = sample_offline
     live, queue, n = LiveFusion(cfg), list(frames), 0
+    for _ in range(before_bus):
+        t, img = queue.pop(0)
+        n += 1
+        for tt in frame_times(n, t):
+            live.push_frame(tt, img)
     for m in messages:
         live.push_can(m)
         while queue and queue[0][0] + 0.08 <= m.timestamp:
@@ -478,6 +484,13 @@ def test_one_frame_stamped_ahead_by_a_glitch_is_taken_back(sample_offline):
     # good, by less than the lead): nothing to take back; the frames go on from it
     ahead, _, _ = _live_run(sample_offline, lambda n, t: [t + 0.4] if n >= 30 else [t])
     assert ahead.counts["frames_stamp_glitch"] == 0 and ahead.counts["frames_out_of_order"] == 0
+    # and once more than MAX_GLITCH_FRAMES have come so, they are the camera's clock: a frame
+    # reordered among them (stamped between frames 43 and 44) is refused, nothing taken back
+    stamps = [t for t, _ in sample_offline[2]]
+    assert MAX_GLITCH_FRAMES < 45 - 30
+    ahead, _, _ = _live_run(sample_offline, lambda n, t: [stamps[42] + 0.415] if n == 45 else
+                            [t + 0.4] if n >= 30 else [t])
+    assert ahead.counts["frames_stamp_glitch"] == 0 and ahead.counts["frames_out_of_order"] == 1, ahead.counts
     # the bus 0.3 s behind the camera (every frame ahead of it): a frame stamped between the two
     # before it is refused as out of order, and the good frame before it stays (each frame was
     # provisional, and the good one was taken back, a review); a frame handed in twice likewise
@@ -497,6 +510,25 @@ def test_one_frame_stamped_ahead_by_a_glitch_is_taken_back(sample_offline):
             live.push_can(m)
         assert live.counts["frames_stamp_glitch"] == 0 and live.counts["frames_out_of_order"] == 1, (twist, live.counts)
 
+
+
+@pytest.mark.parametrize("case", ["two in a row", "before the bus"])
+def test_glitches_in_a_row_or_before_the_bus_are_taken_back(sample_offline, case):
+    """Frames 30 and 31 both stamped 0.4 s ahead, or frame 2 stamped 0.4 s ahead of frame 1
+    before the first CAN message (the bus has no time yet): the twentieth session's list had
+    both holding back the twelve frames after them as out of order. The frames after a
+    provisional one that stay ahead of the bus are provisional too, and before the bus a jump
+    from the frame before is enough: the frame after them, stamped before them, takes them all
+    back, and the run equals the drive without them, to the bit."""
+    glitched = {30, 31} if case == "two in a row" else {2}
+    before_bus = 0 if case == "two in a row" else 3
+    glitch, e, _ = _live_run(sample_offline, lambda n, t: [t + 0.4] if n in glitched else [t], before_bus)
+    assert glitch.counts["frames_stamp_glitch"] == len(glitched), glitch.counts
+    assert glitch.counts["frames_out_of_order"] == 0, glitch.counts
+    without, e0, _ = _live_run(sample_offline, lambda n, t: [] if n in glitched else [t], before_bus)
+    for f in fields(e):
+        assert np.array_equal(getattr(e, f.name), getattr(e0, f.name), equal_nan=True), f.name
+    assert glitch.stream.counts == without.stream.counts
 
 def test_a_camera_clock_that_steps_back_is_said(sample_offline):
     """From frame 100 on the camera's stamps are 20 s behind (its clock stepped back): every
