@@ -511,7 +511,6 @@ def test_one_frame_stamped_ahead_by_a_glitch_is_taken_back(sample_offline):
         assert live.counts["frames_stamp_glitch"] == 0 and live.counts["frames_out_of_order"] == 1, (twist, live.counts)
 
 
-
 @pytest.mark.parametrize("case", ["two in a row", "before the bus"])
 def test_glitches_in_a_row_or_before_the_bus_are_taken_back(sample_offline, case):
     """Frames 30 and 31 both stamped 0.4 s ahead, or frame 2 stamped 0.4 s ahead of frame 1
@@ -529,6 +528,7 @@ def test_glitches_in_a_row_or_before_the_bus_are_taken_back(sample_offline, case
     for f in fields(e):
         assert np.array_equal(getattr(e, f.name), getattr(e0, f.name), equal_nan=True), f.name
     assert glitch.stream.counts == without.stream.counts
+
 
 def test_a_camera_clock_that_steps_back_is_said(sample_offline):
     """From frame 100 on the camera's stamps are 20 s behind (its clock stepped back): every

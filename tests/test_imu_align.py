@@ -165,16 +165,11 @@ def test_live_summary_rates_are_the_logs(tmp_path):
     path = tmp_path / "drive.blf"
     write_can_log(path, imu, speed)
     _, one = read_log(path, sim_mapping(), MOUNT_FRD)
-    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
-    for m in iter_messages(path):
-        dec.push(m)
-    dec.flush()
-    s = dec.summary()
+    _, s = _stream(path, sim_mapping(), MOUNT_FRD)
     assert s.sample_rate_hz == pytest.approx(one.sample_rate_hz, rel=1e-9)
     assert [c.channel for c in s.channels] == [c.channel for c in one.channels]
     for a, b in zip(s.channels, one.channels):
         assert a.decoded == b.decoded and a.rate_hz == pytest.approx(b.rate_hz, rel=1e-9), a.channel
-
 
 
 def test_live_summary_rate_of_a_channel_with_invalid_values(tmp_path):
@@ -195,17 +190,15 @@ def test_live_summary_rate_of_a_channel_with_invalid_values(tmp_path):
                 m.data = bytearray(with_crc(bytes([0xFF, 0xFF]) + bytes(m.data[2:])))   # front wheel SNA
             w.on_message_received(m)
     _, one = read_log(path, sim_mapping(), MOUNT_FRD)
-    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
-    for m in iter_messages(path):
-        dec.push(m)
-    dec.flush()
+    _, live = _stream(path, sim_mapping(), MOUNT_FRD)
     log_speed = next(c for c in one.channels if c.channel == "speed")
-    live_speed = next(c for c in dec.summary().channels if c.channel == "speed")
+    live_speed = next(c for c in live.channels if c.channel == "speed")
     assert (log_speed.decoded, log_speed.invalid) == (99, 50)
     # sent every 20 ms on a microsecond grid: 50 Hz to the grid's rounding
     assert log_speed.rate_hz == pytest.approx(50.0, rel=1e-6)
     assert (live_speed.decoded, live_speed.invalid) == (99, 50)
     assert live_speed.rate_hz == pytest.approx(log_speed.rate_hz, rel=1e-9)
+
 
 def test_frames_of_different_ids_out_of_order(tmp_path):
     """A log merged from two buses: each IMU acceleration frame (0.35 ms after its rate frame)
