@@ -1,6 +1,7 @@
 """What the report's plots show: every estimate against truth, the fused 2-sigma band, the
 vision, the IMU alone and the plain IMU-minus-vision bank (issue 5). The figures are read
-where they are drawn (their axes' artists and legends), not from the PNG's pixels."""
+where they are drawn (their axes' artists and legends, in this process: ``processes=1``), not
+from the PNG's pixels."""
 
 import pandas as pd
 import pytest
@@ -32,7 +33,7 @@ def drawn():
     mp = pytest.MonkeyPatch()
     mp.setattr(report, "_fig_to_png", to_png)
     try:
-        figs = report._plots(inputs)
+        figs = report._plots(inputs, processes=1)
     finally:
         mp.undo()
     assert all(len(png) > 10_000 and png[:4] == b"\x89PNG" for png in figs.values())
@@ -105,7 +106,7 @@ def test_a_truth_of_world_angles_only_has_their_errors_drawn():
     mp = pytest.MonkeyPatch()
     mp.setattr(report, "_fig_to_png", to_png)
     try:
-        figs = report._plots(report.ReportInputs(fused=run.fused, vision=d.vision, truth=truth, cov=run.cov))
+        figs = report._plots(report.ReportInputs(fused=run.fused, vision=d.vision, truth=truth, cov=run.cov), processes=1)
     finally:
         mp.undo()
     assert dict(zip(figs, got))["errors.png"] == ["roll_world error [deg]", "pitch_world error [deg]"]
@@ -224,9 +225,6 @@ def test_a_source_without_a_value_is_null_and_not_a_row_of_blanks(drawn, tmp_pat
 def test_a_drive_shorter_than_the_convergence_is_scaled_to_its_estimates(drawn):
     """A drive under 2 s: the panels were scaled to the values after the first 2 s, none, and
     so the bias panel to the truth alone, the estimates off it (a review); now to all of it."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     from dataclasses import replace
 
     inputs = drawn["inputs"]
@@ -244,7 +242,7 @@ def test_a_drive_shorter_than_the_convergence_is_scaled_to_its_estimates(drawn):
         zero = pd.DataFrame({"t_s": short["t_s"], **{f"{k}_bias_{a}_{u}": 0.0 for k, u in (("gyro", "rad_s"),
                                                                                         ("accel", "m_s2"))
                                                       for a in "xyz"}})   # a simulated IMU without biases
-        report._plots(replace(inputs, fused=short, cov=inputs.cov[:len(short)], imu_truth=zero))
+        report._plots(replace(inputs, fused=short, cov=inputs.cov[:len(short)], imu_truth=zero), processes=1)
     finally:
         mp.undo()
     lims = dict(seen[-1])    # biases.png, drawn last
@@ -271,7 +269,7 @@ def test_a_smoothed_run_says_so_in_every_figure(drawn):
     mp = pytest.MonkeyPatch()
     mp.setattr(report, "_fig_to_png", to_png)
     try:
-        figs = report._plots(replace(drawn["inputs"], smoothed=True))
+        figs = report._plots(replace(drawn["inputs"], smoothed=True), processes=1)
     finally:
         mp.undo()
     axes = dict(zip(figs, got))
@@ -284,3 +282,31 @@ def test_a_smoothed_run_says_so_in_every_figure(drawn):
     assert "fused (smoothed) 2-sigma" in labels and bands >= 1, labels
     page = report._table_html({"smoothed": True, "rmse_deg": {"fused": {"roll": 0.1}}})
     assert "<td>fused (smoothed)</td>" in page
+
+
+@pytest.mark.skipif(not report._can_fork(), reason="no fork or a single core: the figures are drawn in-process")
+def test_figures_drawn_in_two_processes_are_those_of_one(drawn, monkeypatch):
+    """The figures a forked process draws are the pixels this one draws, in the page's order,
+    call after call (a campaign reports every drive in one process); the child's error is raised
+    here, as is its death, not a hang nor the figures of the parent alone."""
+    import os
+    from concurrent.futures.process import BrokenProcessPool
+
+    inputs = drawn["inputs"]
+    alone = report._plots(inputs, processes=1)
+    assert list(alone) == list(report.FIGURES)
+    for _ in range(2):
+        assert report._plots(inputs) == alone
+    real = report._panels
+
+    def failing(n, height_in):   # the attitude figure's four panels: drawn by the child
+        if n == 4:
+            raise RuntimeError("the child failed")
+        return real(n, height_in)
+
+    monkeypatch.setattr(report, "_panels", failing)
+    with pytest.raises(RuntimeError, match="the child failed"):
+        report._plots(inputs)
+    monkeypatch.setattr(report, "_panels", lambda n, height_in: os._exit(3) if n == 4 else real(n, height_in))
+    with pytest.raises(BrokenProcessPool):
+        report._plots(inputs)
