@@ -130,15 +130,19 @@ def read_frame_times(frames_csv: Path | None, timing: VideoTiming, n_frames: int
     return pd.DataFrame({"frame": frame.astype(int), "t_s": t})
 
 
-#: The columns of a drive's ``truth.csv`` (INTERFACE.md, "Drive on disk").
-TRUTH_COLUMNS = ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_world_deg", "pitch_world_deg")
+#: The columns of a drive's ``truth.csv`` that are scored (INTERFACE.md, "Drive on disk"), and the
+#: road's grade: ``grade_deg`` as ``fused.csv`` has it (the pitch convention: positive downhill),
+#: or the simulator's ``road_pitch_deg``, scored as it (:func:`fusion.metrics.interp_truth`).
+TRUTH_COLUMNS = ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "bank_deg", "roll_world_deg", "pitch_world_deg",
+                 "grade_deg", "road_pitch_deg")
 
 
 def read_truth(path: Path | None, columns: tuple[str, ...] = TRUTH_COLUMNS) -> pd.DataFrame | None:
     """A truth table: ``t_s`` (two or more increasing times) and at least one other of ``columns``,
-    each numeric. The simulator writes them all; a real recording's reference may have only
-    some (an INS gives ``roll_world_deg`` and ``pitch_world_deg``, no road angles): what it has
-    is scored, the rest is not (NEES needs all four road angles)."""
+    each numeric. The simulator writes them all (the grade as ``road_pitch_deg``); a real
+    recording's reference may have only some (an INS gives ``roll_world_deg`` and
+    ``pitch_world_deg``, no road angles): what it has is scored, the rest is not (NEES needs all
+    four road angles)."""
     if path is None:
         return None
     try:

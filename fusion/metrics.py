@@ -16,8 +16,13 @@ from vision.frames import R_from_rpy_scalar, rpy_from_R_scalar, so3_exp_scalar, 
 
 __all__ = ["ANGLES", "rmse_table", "interp_truth", "wrap_deg", "consistency", "Consistency", "gyro_attitude_drift"]
 
-#: Output angles compared with truth, as (column stem, truth column).
-ANGLES = ("roll", "pitch", "yaw", "bank", "roll_world", "pitch_world")
+#: Output angles compared with truth: ``<stem>_deg`` in the estimate and in the truth.
+ANGLES = ("roll", "pitch", "yaw", "bank", "roll_world", "pitch_world", "grade")
+#: The simulator's name of the road's grade in ``truth.csv`` (``tools/drivesim``): the pitch of
+#: the road frame at the vehicle, ``R_w_from_o = Rz(heading) Ry(road_pitch) Rx(bank)``, which is
+#: the filter's ``grade`` (``fusion.ekf``: ``R_g'_from_o = Ry(grade) Rx(bank)``), in the pitch
+#: convention as ``fused.csv``'s ``grade_deg``: positive downhill.
+SIMULATOR_GRADE_COLUMN = "road_pitch_deg"
 
 
 def interp_truth(truth: pd.DataFrame, t_s: np.ndarray) -> pd.DataFrame:
@@ -25,7 +30,10 @@ def interp_truth(truth: pd.DataFrame, t_s: np.ndarray) -> pd.DataFrame:
     (``*_deg``) are interpolated the short way round: a heading stepping from 179.9 to -179.9
     deg between two truth samples passes through 180, not 0 (a review measured 3.8 deg of yaw
     RMSE for an estimate equal to such a truth 3 ms off its samples), and come back in
-    [-180, 180)."""
+    [-180, 180). A truth without ``grade_deg`` gives the simulator's grade under that name
+    (:data:`SIMULATOR_GRADE_COLUMN`)."""
+    if "grade_deg" not in truth and SIMULATOR_GRADE_COLUMN in truth:
+        truth = truth.assign(grade_deg=truth[SIMULATOR_GRADE_COLUMN])
     tt = truth["t_s"].to_numpy(dtype=float)
     out = {"t_s": t_s}
     for c in truth.columns:

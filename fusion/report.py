@@ -295,19 +295,20 @@ def _draw_figures(r: ReportInputs, names) -> dict[str, bytes]:
                 f"{r.title}: attitude relative to the road and road bank{smoothed}", ncol=4)
 
     if "world.png" in names:
-        # 2. relative to gravity
-        fig, axes = _panels(2, 6)
-        for ax, a in zip(axes, ("roll_world", "pitch_world")):
+        # 2. relative to gravity: the vehicle's attitude and the road's grade (the grade had been
+        # in fused.csv only, neither drawn nor scored against the truth)
+        fig, axes = _panels(3, 8.5)
+        for ax, a in zip(axes, ("roll_world", "pitch_world", "grade")):
             shown = band(ax, a, fused, "tab:blue")
-            if r.imu_only is not None:
+            if r.imu_only is not None and a != "grade":
                 ax.plot(r.imu_only["t_s"] - t0, r.imu_only[f"{a}_deg"], color="tab:green", lw=1.0, label="IMU only")
                 shown.append(r.imu_only[f"{a}_deg"].to_numpy())
             if truth is not None and f"{a}_deg" in truth:
                 ax.plot(tf, truth[f"{a}_deg"], "k--", lw=1.0, label="truth")
                 shown.append(truth[f"{a}_deg"].to_numpy())
             _scale_to(ax, shown)
-        _finish(figs, "world.png", fig, axes, ("roll_world [deg]", "pitch_world [deg]"),
-                f"attitude relative to gravity{smoothed}", ncol=4)
+        _finish(figs, "world.png", fig, axes, ("roll_world [deg]", "pitch_world [deg]", "grade [deg], + downhill"),
+                f"attitude relative to gravity and the road's grade{smoothed}", ncol=4)
 
     if "errors.png" in names:
         # 3. errors against truth with the 2-sigma envelope: every angle the truth has (a real
@@ -438,7 +439,7 @@ def _table_html(summary: dict) -> str:
     rows = []
     acc = summary.get("rmse_deg")
     if acc:
-        cols = ["roll", "pitch", "yaw", "bank", "roll_world", "pitch_world"]
+        cols = list(ANGLES)
         head = "".join(f"<th>{c}</th>" for c in cols)
         rows.append(f"<h2>RMSE against truth [deg] (after {CONVERGENCE_S:g} s)</h2><table><tr><th>source</th>{head}</tr>")
         # a source without a value is said under the table, not shown as a row of blanks

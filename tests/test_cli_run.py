@@ -121,6 +121,12 @@ def test_run_without_inputs_processes_the_bundled_sample(tmp_path):
     assert rmse["fused"]["bank"] < 0.3 and rmse["fused"]["roll"] < 0.3 and rmse["fused"]["yaw"] < 0.3, rmse
     assert rmse["fused"]["roll"] < rmse["vision"]["roll"] and rmse["fused"]["yaw"] < rmse["vision"]["yaw"], rmse
     assert rmse["fused"]["bank"] < rmse["imu_minus_vision"]["bank"], rmse
+    # the road's grade is scored against the simulator's road pitch (truth.csv's road_pitch_deg,
+    # the same convention as fused.csv's grade_deg): the summary's figure is that RMSE
+    truth = pd.read_csv(SAMPLE_DRIVE / "truth.csv")
+    late = fused["t_s"] >= fused["t_s"].iloc[0] + 2.0
+    e = fused["grade_deg"][late] - np.interp(fused["t_s"][late], truth["t_s"], truth["road_pitch_deg"])
+    assert rmse["fused"]["grade"] == pytest.approx(float(np.sqrt(np.mean(e**2))), rel=1e-6), rmse
     # its 640x360 vision is overconfident in the banked curve (docs/fusion-notes.md): the report
     # says so when the NEES misses the 90 % (66 % measured), and says nothing otherwise
     c = summary["consistency"]

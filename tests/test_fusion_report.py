@@ -52,8 +52,13 @@ def test_attitude_against_truth_with_the_band(drawn):
 
 
 def test_gravity_referenced_attitude_with_the_imu_alone(drawn):
-    for _, labels, bands, _ in drawn["world.png"]:
-        assert {"fused", "fused 2-sigma", "IMU only", "truth"} <= set(labels) and bands >= 1, labels
+    """World roll and pitch with the IMU alone; the road's grade with its band and the truth (the
+    simulator's road pitch: the grade had been neither drawn nor scored)."""
+    rows = dict((y, (labels, bands)) for y, labels, bands, _ in drawn["world.png"])
+    assert list(rows) == ["roll_world [deg]", "pitch_world [deg]", "grade [deg], + downhill"]
+    for y, (labels, bands) in rows.items():
+        want = {"fused", "fused 2-sigma", "truth"} | ({"IMU only"} if "world" in y else set())
+        assert want <= set(labels) and bands >= 1, (y, labels)
 
 
 def test_errors_against_truth_with_the_band(drawn):
@@ -85,6 +90,8 @@ def test_errors_against_truth_with_the_band(drawn):
     for a in ("roll_world", "pitch_world"):
         labels, bands, _ = rows[f"{a} error [deg]"]
         assert {"fused - truth", "+-2 sigma", "IMU only - truth"} <= set(labels) and bands >= 1, (a, labels)
+    labels, bands, _ = rows["grade error [deg]"]
+    assert {"fused - truth", "+-2 sigma"} <= set(labels) and bands >= 1, labels
 
 
 def test_a_truth_of_world_angles_only_has_their_errors_drawn():
