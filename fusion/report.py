@@ -210,7 +210,13 @@ def _plots(r: ReportInputs, processes: int = 2) -> dict[str, bytes]:
         return _draw(r, FIGURES)
     fork = multiprocessing.get_context("fork")
     with ProcessPoolExecutor(1, mp_context=fork, initializer=_child_signals) as pool:
-        theirs = pool.submit(_draw, r, FORKED)
+        # the child is forked in submit: a Ctrl-C or SIGTERM between its fork and its handlers
+        # (a review) waits, blocked, until each process has its own
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)
+        try:
+            theirs = pool.submit(_draw, r, FORKED)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         figs = _draw(r, [name for name in FIGURES if name not in FORKED])
         figs.update(theirs.result())
     return {name: figs[name] for name in FIGURES if name in figs}
@@ -224,12 +230,18 @@ def _can_fork() -> bool:
             and not multiprocessing.current_process().daemon)
 
 
+#: The signals that stop ``vifusion run`` (fusion.cli), blocked while the report's child is forked.
+_STOPS = {signal.SIGINT, signal.SIGTERM}
+
+
 def _child_signals() -> None:
     """The forked child leaves Ctrl-C to this process, which waits for it (its figures' time),
     and a SIGTERM ends it as it ends a process: it keeps the command's handlers otherwise
-    (fusion.cli), which raise in it."""
+    (fusion.cli), which raise in it. It is forked with both blocked (:func:`_plots`): they are
+    taken once its own handlers are set."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOPS)
 
 
 def _draw(r: ReportInputs, names) -> dict[str, bytes]:
