@@ -30,6 +30,7 @@ try:   # numpy loads here (0.15 s): an interrupt during the imports is said as a
     import gc
     import importlib
     import os
+    import re
     import signal
     import threading
     import time
@@ -302,15 +303,42 @@ def mapped_as(mapping, channel: str) -> str:
 def write_table(df, path: Path) -> None:
     """One output table, CSV or Parquet by the suffix, written to ``PATH.partial`` and renamed.
     CSV numbers keep 9 significant digits (a fixed 6 decimals kept 2 of a curvature sigma of
-    9e-5 1/m, a review found), the times ``t_s`` their microseconds."""
+    9e-5 1/m, a review found), the times ``t_s`` their microseconds, an empty field for NaN."""
     if path.suffix.lower() == ".parquet":
         write_atomically(path, lambda tmp: df.to_parquet(tmp, index=False))  # keeps df.attrs
+        return
+    text = numeric_csv(df)
+    if text is not None:
+        write_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8", newline=""))
         return
     if "t_s" in df.columns:
         import numpy as np
 
         df = df.assign(t_s=np.char.mod("%.6f", df["t_s"].to_numpy(dtype=float)))
     write_atomically(path, lambda tmp: df.to_csv(tmp, index=False, float_format="%.9g"))
+
+
+#: A field that is the float NaN as ``"%.9g"`` writes it, to be written empty as pandas does.
+_NAN_FIELD = re.compile(r"(?<![^,\n])nan(?![^,\n])")
+
+
+def numeric_csv(df) -> str | None:
+    """The CSV text that ``write_table`` writes of a table whose columns are all numbers or
+    booleans (``fused.csv``), byte for byte as pandas' ``to_csv`` with ``float_format="%.9g"``
+    (``tests/test_cli_run.py``; a NaN time apart, which it writes empty) at a third of its time: one ``%`` per row instead of three
+    Python calls per value (the 60 s drive's ``fused.csv``, 6000 x 37: 0.12 s against 0.29);
+    ``None`` for another table (a string column: pandas' quoting; one column: pandas writes its
+    NaN as ``""``, an empty line being no row)."""
+    kinds = [df[c].dtype.kind if hasattr(df[c].dtype, "kind") else "O" for c in df.columns]
+    if len(df.columns) < 2 or any(k not in "fiub" for k in kinds) or df.columns.duplicated().any():
+        return None
+    if any(str(c) != c or any(ch in c for ch in ',"\n\r') for c in df.columns):
+        return None
+    codes = {"f": "%.9g", "i": "%d", "u": "%d", "b": "%s"}
+    fmt = ",".join("%.6f" if c == "t_s" else codes[k] for c, k in zip(df.columns, kinds))
+    rows = [fmt % row for row in zip(*(df[c].tolist() for c in df.columns))]
+    body = _NAN_FIELD.sub("", "\n".join(rows)) if "f" in kinds else "\n".join(rows)
+    return ",".join(df.columns) + "\n" + body + ("\n" if rows else "")
 
 
 def check_output_file(path: Path) -> None:
