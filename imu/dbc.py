@@ -199,7 +199,7 @@ def resolve(mapping: CanMapping, db: Any | None = None) -> DecodePlan:
     path = Path(mapping.dbc_path) if mapping.dbc_path is not None else Path("DBC")
     if db is None:
         db = load_dbc(path)
-    name = path.name
+    name = str(path)   # as the user gave it, folder and all (load_dbc's errors name it so too)
     names = [m.name for m in db.messages]
     by_source: dict[tuple, list[SignalPlan]] = {}
     src_info: dict[tuple, tuple[Any, tuple[MuxCondition, ...]]] = {}

@@ -130,6 +130,11 @@ def test_numeric_tables_are_written_as_pandas_writes_them(tmp_path):
     assert (tmp_path / "t.csv").read_bytes() == by_pandas(df).encode()
     assert pd.read_csv(tmp_path / "t.csv")["roll_deg"].isna().sum() == 1
     assert numeric_csv(df.assign(reason="no lanes, dashed")) is None
+    # a missing time is an empty field on both paths (pandas' own would write "nan")
+    nan_time = df.assign(t_s=df["t_s"].where(df.index != 3))
+    write_table(nan_time.assign(reason="x"), tmp_path / "s.csv")
+    for text in (numeric_csv(nan_time), (tmp_path / "s.csv").read_text()):
+        assert text.splitlines()[4].split(",")[0] == "", text
 
 
 def test_run_without_inputs_processes_the_bundled_sample(tmp_path):

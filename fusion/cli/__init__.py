@@ -314,7 +314,8 @@ def write_table(df, path: Path) -> None:
     if "t_s" in df.columns:
         import numpy as np
 
-        df = df.assign(t_s=np.char.mod("%.6f", df["t_s"].to_numpy(dtype=float)))
+        t = df["t_s"].to_numpy(dtype=float)
+        df = df.assign(t_s=np.where(np.isnan(t), "", np.char.mod("%.6f", t)))   # NaN empty, as numeric_csv
     write_atomically(path, lambda tmp: df.to_csv(tmp, index=False, float_format="%.9g"))
 
 
@@ -325,7 +326,8 @@ _NAN_FIELD = re.compile(r"(?<![^,\n])nan(?![^,\n])")
 def numeric_csv(df) -> str | None:
     """The CSV text that ``write_table`` writes of a table whose columns are all numbers or
     booleans (``fused.csv``), byte for byte as pandas' ``to_csv`` with ``float_format="%.9g"``
-    (``tests/test_cli_run.py``; a NaN time apart, which it writes empty) at a third of its time: one ``%`` per row instead of three
+    (``tests/test_cli_run.py``; a NaN time written empty, as ``write_table`` writes it in
+    every table) at a third of its time: one ``%`` per row instead of three
     Python calls per value (the 60 s drive's ``fused.csv``, 6000 x 37: 0.12 s against 0.29);
     ``None`` for another table (a string column: pandas' quoting; one column: pandas writes its
     NaN as ``""``, an empty line being no row)."""
