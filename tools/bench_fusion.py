@@ -30,7 +30,8 @@ runs the whole ``vifusion run`` as a user would (a subprocess, timed), then prin
   and range of ``SPEED_RUNS`` runs: the machine is shared), the filter alone in IMU samples
   per second, and LiveFusion's cost per IMU sample;
 * memory: the peak of a ``vifusion run`` and of a ``vifusion run --smooth`` (runs of their
-  own), summed over its processes (proportional set sizes) and of the largest one.
+  own), summed over its processes (proportional set sizes) and of the largest one;
+* the machine's own speed (:func:`machine_reference`), to compare benches across machines.
 
 Full drives (video, CAN log, truth) are cached under ``.cache/drives/full-<name>-<key>/``.
 """
@@ -662,7 +663,28 @@ def main(argv=None) -> int:
     print(" filter alone: IMU samples/s through the forward filter with vision; LiveFusion: CAN decode + filter")
     print(" + vision results, per IMU sample; memory: peak of the processes' summed proportional set size, in")
     print(" brackets the largest one process's, in a run of its own, sampled every 50 ms)")
+    loop_s, import_s = machine_reference()
+    print(f"machine (to compare benches across machines): 10^7 Python integer additions {loop_s:.2f} s, "
+          f"'import scipy.stats' in a fresh interpreter {import_s:.2f} s (medians of 3)")
     return 0
+
+
+def machine_reference() -> tuple[float, float]:
+    """Two fixed workloads that say how fast this machine is today (the speed table's figures
+    move with the machine: the same code's 60 s drive took 8.7 s on one and 12.7 s on
+    another): a pure-Python loop, s, and the largest start-up import the run makes, s; medians
+    of 3."""
+    loops, imports = [], []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        total = 0
+        for i in range(10_000_000):
+            total += i
+        loops.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "import scipy.stats"], check=True)
+        imports.append(time.perf_counter() - t0)
+    return statistics.median(loops), statistics.median(imports)
 
 
 if __name__ == "__main__":
