@@ -199,6 +199,23 @@ white noise is in the prediction: its covariance (:func:`rate_noise_cov`) joins 
 accelerometer's, all of it in the gate, the part that accumulates over samples (the rates'
 own; the differenced part telescopes) in the update.
 
+The wheelbase (``wheelbase_m``, ``L``; :class:`fusion.engine.FusionOptions`, ``[fusion]``). The
+origin is the front wheel's contact point (INTERFACE.md), but the wheel that rolls without side
+slip is the rear one, which is not steered: the origin moves sideways at ``L w_n``, with ``w_n =
+w . e_n`` the heading rate about the road's normal, along ``e_lat`` (the body's y in the road
+plane). Its acceleration adds ``L (w_n' e_lat + w_n (de_lat/dt + w x e_lat))`` to ``f``, with
+``w_n' = w' . e_n + w . de_n/dt``: in a steady turn ``-L w_n^2`` along the path (0.02 m/s^2 for
+1.45 m in a 200 m curve at 80 km/h), entering a curve ``L w_n'`` across it (0.05 m/s^2 in the
+right-hand drive's clothoid, 1/200 m^-1 in about 66 m at 80 km/h). Small, but along the weakly
+observed directions: on the simulator's right-hand drive with a 1.45 m wheelbase
+(``tools/drivesim``, ``[motion] wheelbase_m``) a filter without it took the longitudinal
+accelerometer bias to -0.2 m/s^2 through the curve's entry and held it there, the grade 0.77 deg
+RMS off and the bank 0.26 (0.15 and 0.11 on the same drive without a wheelbase); with it, 0.15
+and 0.08. In the steady turn the body's yaw relative to the road is ``-asin(L kappa)`` (0.42
+deg in size there), which the vision sees and ``yaw_rel`` carries. Its Jacobian keeps the rates'
+first-order terms (the relative Euler rates' share left out); ``L (w' . e_n) e_lat``'s gyro
+noise, differenced as ``w'`` is, joins :func:`rate_noise_cov`.
+
 Noise is given as 1-sigma values in natural units (:class:`NoiseModel`); the filter squares them.
 """
 
@@ -835,13 +852,20 @@ class AttitudeEKF(ExtendedKalmanFilter):
         IMU position in the vehicle frame, m.
     has_pitch_rate : bool
         False for IMUs without a pitch-rate channel: ``q = r tan(roll_w)``.
+    wheelbase_m : float
+        The rear wheel's contact point behind the front one (the origin), m: the rear wheel
+        rolls without side slip (module docstring, "The wheelbase"); 0: the origin's velocity
+        along the body's heading.
     """
 
     def __init__(self, noise: NoiseModel = NoiseModel(), lever_arm_m=(0.0, 0.0, 0.0),
-                 has_pitch_rate: bool = True) -> None:
+                 has_pitch_rate: bool = True, wheelbase_m: float = 0.0) -> None:
         super().__init__(dim_x=DIM_X, dim_z=3)
         self.noise = noise
         self.lever_arm_m = np.asarray(lever_arm_m, dtype=float)
+        self.wheelbase_m = float(wheelbase_m)
+        # what the compiled kernels take: the lever arm, then the wheelbase
+        self._rho = np.append(self.lever_arm_m, self.wheelbase_m)
         self.has_pitch_rate = has_pitch_rate
         n = noise
         sig0 = np.zeros(DIM_X)
@@ -1079,7 +1103,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         (:func:`_specific_force`): it runs for every IMU sample.
         """
         return _specific_force(self.x, np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float),
-                               self.lever_arm_m, float(road_turn_rate_rad_s), self.has_pitch_rate)
+                               self._rho, float(road_turn_rate_rad_s), self.has_pitch_rate)
 
     def update_gravity(self, accel_m_s2, gyro_rad_s, gyro_dot_rad_s2, road_turn_rate_rad_s: float = 0.0,
                        r_scale: float = 1.0, gyro_dot_dt_s: float = math.inf) -> bool:
@@ -1094,7 +1118,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         z = np.asarray(accel_m_s2, dtype=float)
         ok, d2, x, P, y, K, Sm, SI = _gravity_update(
             self.x, self.P, z, np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float),
-            self.lever_arm_m, float(road_turn_rate_rad_s), self.has_pitch_rate, self._accel_r(r_scale),
+            self._rho, float(road_turn_rate_rad_s), self.has_pitch_rate, self._accel_r(r_scale),
             self._gate[3], self.noise.gyro_noise_rad_s**2, float(gyro_dot_dt_s))
         return self._accept(ok, d2, x, P, y, K, Sm, SI, z)
 
@@ -1122,7 +1146,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
             self.x, self.P, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
             self._rate_taus(u), self._q_per_s(u), n.gyro_noise_rad_s**2, n.yaw_rel_walk_no_lanes_rad_sqrt_s**2,
             _target(u), float(speed_m_s), n.speed_meas_m_s**2, self._gate[1], np.asarray(accel_m_s2, dtype=float),
-            np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float), self.lever_arm_m,
+            np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float), self._rho,
             gravity, self._accel_r(r_scale), self._gate[3], float(gyro_dot_dt_s))
         self.x_post, self.P_post = self.x, self.P
         self.last_d2 = d2
@@ -1168,6 +1192,27 @@ def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     f[0] = fx + wdy * rz - wdz * ry + q * cz - r * cy + x[11]
     f[1] = fy + wdz * rx - wdx * rz + r * cx - p * cz + x[12]
     f[2] = fz + wdx * ry - wdy * rx + p * cy - q * cx + x[13]
+    # the wheelbase (rho[3], 0 without one): the rear wheel rolls without side slip, so the origin
+    # (the front contact) moves sideways in the road plane at L w_n, w_n = w . e_n the heading
+    # rate about the road's normal e_n, along e_lat (the body's y in the road plane); its
+    # acceleration in the body: L (w_n' e_lat + w_n (de_lat + w x e_lat)), w_n' = w' . e_n +
+    # w . de_n. In a steady turn that is -L w_n^2 along the path, entering a curve L w_n' across
+    # it (module docstring, "The wheelbase")
+    wb = rho[3] if rho.shape[0] > 3 else 0.0
+    if wb != 0.0:
+        nx, ny, nz = -sto, so * cto, co * cto                    # e_n in the body
+        lx, ly, lz = 0.0, co, -so                                # e_lat in the body
+        dnx = -cto * theta_o_dot
+        dny = co * cto * phi_o_dot - so * sto * theta_o_dot
+        dnz = -so * cto * phi_o_dot - co * sto * theta_o_dot
+        dly, dlz = -so * phi_o_dot, -co * phi_o_dot
+        w_n = p * nx + q * ny + r * nz
+        w_n_dot = wdx * nx + wdy * ny + wdz * nz + p * dnx + q * dny + r * dnz
+        # w x e_lat
+        kx, ky, kz = q * lz - r * ly, r * lx - p * lz, p * ly - q * lx
+        f[0] += wb * (w_n_dot * lx + w_n * kx)
+        f[1] += wb * (w_n_dot * ly + w_n * (dly + ky))
+        f[2] += wb * (w_n_dot * lz + w_n * (dlz + kz))
     # Jacobian. Rates enter through w x e and through de (the relative Euler rates):
     # df/dw = v (-[e]x + de/dtheta_o (0, cos, -sin) + de/dphi_o (1, tan sin, tan cos)); the
     # two cancel for a body pitching relative to its path, so a pitch-rate bias does not
@@ -1204,6 +1249,15 @@ def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     for i in range(3):
         for k in range(3):
             M[i, k] = v * J[i, k] + w3[i] * rho[k] - 2.0 * rho[i] * w3[k] + (wr if i == k else 0.0)
+    if wb != 0.0:
+        # the wheelbase's terms by the rates, the relative Euler rates' share left out (second
+        # order): L (e_lat de_n^T + (de_lat + w x e_lat) e_n^T - w_n [e_lat]x)
+        el, en, den = (lx, ly, lz), (nx, ny, nz), (dnx, dny, dnz)
+        acr = (kx, dly + ky, dlz + kz)
+        skew = ((0.0, -lz, ly), (lz, 0.0, -lx), (-ly, lx, 0.0))   # [e_lat]x
+        for i in range(3):
+            for k in range(3):
+                M[i, k] += wb * (el[i] * den[k] + acr[i] * en[k] - w_n * skew[i][k])
     for i in range(3):
         if has_q:
             H[i, 5], H[i, 6], H[i, 7] = -M[i, 0], -M[i, 1], -M[i, 2]
@@ -1511,6 +1565,18 @@ def rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt):  # pragma: no cove
     inv = 1.0 / dot_dt if math.isfinite(dot_dt) and dot_dt > 0.0 else 0.0
     # d (w' x rho) / d w' = -[rho]x
     Ja = np.array([[0.0, rho[2], -rho[1]], [-rho[2], 0.0, rho[0]], [rho[1], -rho[0], 0.0]]) * inv
+    wb = rho[3] if rho.shape[0] > 3 else 0.0
+    if wb != 0.0:
+        # the wheelbase's L (w' . e_n) e_lat (_specific_force), e_n and e_lat from the attitude
+        # relative to the road
+        R = _tmm(R_from_rpy_scalar(x[3], x[4], 0.0), R_from_rpy_scalar(x[0], x[1], x[2]))
+        phi_o = math.atan2(R[2, 1], R[2, 2])
+        theta_o = -math.asin(max(-1.0, min(1.0, R[2, 0])))
+        so, co, sto, cto = math.sin(phi_o), math.cos(phi_o), math.sin(theta_o), math.cos(theta_o)
+        en, el = (-sto, so * cto, co * cto), (0.0, co, -so)
+        for i in range(3):
+            for j in range(3):
+                Ja[i, j] += wb * el[i] * en[j] * inv
     t = math.tan(x[0])
     for i in range(3):
         Jw[i, 0] -= H[i, 5]

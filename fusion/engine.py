@@ -94,6 +94,10 @@ class FusionOptions:
     #: more than a fifth of a second (its roll modes are at 1-2 Hz). The filter starts again
     #: from the sample after the gap (:meth:`FusionStream.restart`), s.
     max_imu_gap_s: float = 0.2
+    #: The rear wheel's contact point behind the front one (the vehicle's origin), m: the
+    #: origin moves sideways at the wheelbase times the heading rate (the rear wheel rolls
+    #: without side slip; :class:`fusion.ekf.AttitudeEKF`). 0: along the body's heading.
+    wheelbase_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -179,7 +183,7 @@ class FusionStream:
     def __init__(self, lever_arm_m=(0.0, 0.0, 0.0), has_pitch_rate: bool = True,
                  options: FusionOptions = FusionOptions(), record: bool = False) -> None:
         self.options = options
-        self.ekf = AttitudeEKF(options.noise, lever_arm_m, has_pitch_rate)
+        self.ekf = AttitudeEKF(options.noise, lever_arm_m, has_pitch_rate, options.wheelbase_m)
         self.record = record
         self.steps: list[StepRecord] = []
         self.start: tuple[np.ndarray, np.ndarray] | None = None   # posterior at the first sample
@@ -359,7 +363,7 @@ class FusionStream:
         keep = [*range(S.GYRO_BIAS.start, S.GYRO_BIAS.stop), *range(S.ACCEL_BIAS.start, S.ACCEL_BIAS.stop)]
         if not old.has_pitch_rate:
             keep.remove(S.GYRO_BIAS_Y)   # that slot is the pitch rate q = r tan(roll) leaves out
-        self.ekf = AttitudeEKF(old.noise, old.lever_arm_m, old.has_pitch_rate)
+        self.ekf = AttitudeEKF(old.noise, old.lever_arm_m, old.has_pitch_rate, old.wheelbase_m)
         self.ekf.x[keep] = old.x[keep]
         self.ekf.P[np.ix_(keep, keep)] = old.P[np.ix_(keep, keep)]
         newest = self._hist[-1].t if self._hist and not clock_reset else math.inf

@@ -19,6 +19,10 @@ Every key is optional; units are in the names. Example::
     defer_roll = true                # vision roll applied when the vehicle reaches the road it
                                      # was measured on (false: modelled as the bank ahead)
     max_imu_gap_s = 0.2              # IMU samples further apart: the filter starts again
+    wheelbase_m = 1.45               # rear contact behind the front one (the origin), m: the
+                                     # front contact moves sideways at L x heading rate (0:
+                                     # the default, along the heading; measured on a motorcycle
+                                     # drive in the README)
 """
 
 from __future__ import annotations
@@ -104,6 +108,7 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
         defer_roll=t.get("defer_roll", "bool", d.defer_roll),
         bank_rate_map=t.get("bank_rate_map", "bool", d.bank_rate_map),
         max_imu_gap_s=t.get("max_imu_gap_s", "float", d.max_imu_gap_s, min=1e-3, max=60.0),
+        wheelbase_m=t.get("wheelbase_m", "float", d.wheelbase_m, min=0.0, max=10.0),
     )
     run = RunSettings(
         camera_time_offset_s=t.get("camera_time_offset_s", "float", 0.0, min=-10.0, max=10.0),

@@ -218,6 +218,7 @@ def parse_scenario(data: dict, source: str) -> Scenario:
         pitch_phase_deg=mo.get("pitch_phase_deg", "float", 0.0),
         pitch_per_decel_deg=mo.get("pitch_per_decel_deg", "float", 0.3, min=0.0, max=5.0),
         car_roll_gain_deg=mo.get("car_roll_gain_deg", "float", 0.5, min=0.0, max=5.0),
+        wheelbase_m=mo.get("wheelbase_m", "float", 0.0, min=0.0, max=10.0),
     )
     mo.done()
     if motion.manoeuvres:

@@ -5,7 +5,16 @@ offset ``d(s)`` (base offset plus manoeuvres, septic smoothsteps so that the lat
 jerk, hence the roll rate, is continuous). The attitude relative to the local road frame
 ``o`` at the contact point is ``R_o_from_v = Rz(yaw) Ry(pitch) Rx(roll)`` with
 
-* yaw: the heading of the contact point's velocity in the road plane (no side slip);
+* yaw: the heading of the contact point's velocity in the road plane (no side slip), less,
+  with a wheelbase ``L`` (``Motion.wheelbase_m``), ``asin(L k_p)`` with ``k_p`` the curvature
+  of the contact point's path in the road plane: the body points along the chord from the rear
+  contact to the front one (the contact point followed is the front wheel's, the contract's
+  origin of ``v``), and the rear wheel, which is not steered, rolls without side slip. In a
+  steady turn this is exact (the rear contact on the circle of radius ``sqrt(R^2 - L^2)``, the
+  chord at ``asin(L / R)`` behind the tangent: nose right in a left turn, negative yaw); where
+  the curvature changes it is the quasi-static chord, the rear wheel slipping by about
+  ``L^2 dk_p/ds`` (1e-4 rad in the bench's clothoids). ``L = 0`` is the body along the
+  velocity, as every drive had it before the wheelbase was modelled;
 * pitch: a suspension oscillation plus a nose-down term proportional to deceleration;
 * roll, motorcycle: the lean that keeps the specific force ``f = a + g z_w`` of the contact
   point's path in the vehicle's plane of symmetry, ``y_v . f = 0``. With
@@ -95,6 +104,7 @@ class Motion:
     pitch_phase_deg: float = 0.0
     pitch_per_decel_deg: float = 0.3   # deg of nose-down per m/s^2 of deceleration
     car_roll_gain_deg: float = 0.5     # deg of body roll per m/s^2 of lateral specific force across the road (car)
+    wheelbase_m: float = 0.0           # rear to front contact point, m; 0: the body along the velocity
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -191,6 +201,10 @@ class Trajectory:
         x_o, y_o = R_w_from_o[..., 0], R_w_from_o[..., 1]
         yaw = np.arctan2(np.sum(V * y_o, -1), np.sum(V * x_o, -1))
         speed = np.linalg.norm(V, axis=-1)
+        if self.motion.wheelbase_m > 0.0:
+            # the path's curvature in the road plane, (V x A) . z_o / |V|^3, positive to the left
+            k_p = np.sum(np.cross(V, A) * R_w_from_o[..., 2], -1) / np.maximum(speed, 1e-6) ** 3
+            yaw = yaw - np.arcsin(np.clip(self.motion.wheelbase_m * k_p, -1.0, 1.0))
         a_long = np.sum(A * V, -1) / np.maximum(speed, 1e-6)
         pitch = self.pitch_rad(t, a_long)
         M = R_w_from_o @ Rz(yaw) @ Ry(pitch)
