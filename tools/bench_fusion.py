@@ -31,7 +31,8 @@ runs the whole ``vifusion run`` as a user would (a subprocess, timed), then prin
   per second, and LiveFusion's cost per IMU sample;
 * memory: the peak of a ``vifusion run`` and of a ``vifusion run --smooth`` (runs of their
   own), summed over its processes (proportional set sizes) and of the largest one;
-* the machine's own speed (:func:`machine_reference`), to compare benches across machines.
+* the machine's own speed (:func:`machine_reference`), to compare benches across machines;
+* a motorcycle with a wheelbase (:data:`WHEELBASE`): the filter with and without its terms.
 
 Full drives (video, CAN log, truth) are cached under ``.cache/drives/full-<name>-<key>/``.
 """
@@ -67,6 +68,9 @@ QUICK = ("banked_curve_right_7deg", "banked_curve_left_5deg")
 #: The bundled sample drive (``fusion.drive.SAMPLE_DRIVE``, 640x360), its rows' name: in the
 #: accuracy and consistency tables (lanes lost from 5 s: it lasts 12 s), not in the others.
 SAMPLE = "sample_banked_curve"
+#: The right-hand drive on a motorcycle with a 1.45 m wheelbase (its config tells the filter):
+#: the filter with and without the wheelbase's terms (fusion/ekf.py, "The wheelbase").
+WHEELBASE = "banked_curve_right_7deg_wheelbase"
 BARS = {"roll": 0.15, "pitch": 0.15, "yaw": 0.1, "bank": 0.3}
 
 
@@ -507,6 +511,35 @@ def live_cost_us(drive: Path) -> float:
     return (time.perf_counter() - t0) / max(live.samples - n0, 1) * 1e6
 
 
+WHEELBASE_ANGLES = ("roll", "pitch", "yaw", "bank", "grade", "roll_world", "pitch_world")
+
+
+def wheelbase(drive: Path) -> list[tuple[str, dict]]:
+    """The wheelbase drive's ``vifusion run`` (its config gives ``[fusion] wheelbase_m``),
+    forward and smoothed, the same forward filter told no wheelbase, and the vision alone:
+    ``(label, RMSE per angle)``."""
+    import dataclasses
+
+    from fusion.metrics import rmse_table
+    from fusion.report import CONVERGENCE_S
+    from fusion.pipeline import fuse
+
+    out = drive.parent / (drive.name + "-run")
+    _, summ = run_cli(drive, out)
+    smooth_dir = drive.parent / (drive.name + "-run-smooth")
+    _, summ_s = run_cli(drive, smooth_dir, "--smooth")
+    shutil.rmtree(smooth_dir, ignore_errors=True)
+    cfg, opts, imu, vision, truth = filter_inputs(drive, out)
+    untold = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=dataclasses.replace(opts, wheelbase_m=0.0)).fused
+    acc = summ["rmse_deg"]
+    return [(f"fused (forward), wheelbase_m = {opts.wheelbase_m:g}", acc["fused"]),
+            ("fused (smoothed)", summ_s["rmse_deg"]["fused"]),
+            ("fused (forward), the filter told wheelbase_m = 0",
+             rmse_table(untold, truth, float(untold["t_s"].iloc[0]) + CONVERGENCE_S)),
+            ("vision alone", acc.get("vision") or {}),
+            ("IMU - vision (2018)", acc.get("imu_minus_vision") or {})]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="only the 20 s drives")
@@ -558,6 +591,7 @@ def main(argv=None) -> int:
         shutil.rmtree(out_s, ignore_errors=True)
         rows.append((SAMPLE, summ["rmse_deg"], summ_s["rmse_deg"]["fused"], summ["consistency"]["fraction_inside"],
                      summ_s["consistency"]["fraction_inside"], *lane_loss(SAMPLE_DRIVE, out, t_loss_s=5.0)))
+    wheelbase_rows = [] if args.quick else wheelbase(cached_full_drive(WHEELBASE))
     # A campaign with one IMU: the single-curve drives started from the IMU biases the drive with
     # curves both ways ended with (fusion.calibration).
     campaign_rows = []
@@ -582,6 +616,14 @@ def main(argv=None) -> int:
             cells = " ".join(f"{vals[a]:7.3f}" if vals.get(a) is not None else f"{'':7}"
                              for a in ("roll", "pitch", "yaw", "bank", "grade"))
             print(f"{name:<26} {label:<22} {cells}")
+    if wheelbase_rows:
+        print()
+        print(f"{WHEELBASE}: a 1.45 m wheelbase, the rear wheel without side slip (the same seed as")
+        print("banked_curve_right_7deg); RMSE against truth after 2 s [deg]")
+        print(f"{'source':<44} " + " ".join(f"{a:>11}" for a in WHEELBASE_ANGLES))
+        for label, vals in wheelbase_rows:
+            print(f"{label:<44} " + " ".join(f"{vals[a]:11.3f}" if vals.get(a) is not None else f"{'':11}"
+                                              for a in WHEELBASE_ANGLES))
     if campaign_rows:
         print()
         print("Campaign: started from the IMU calibration the banked_curves_60s run wrote (same IMU), forward filter")
