@@ -183,8 +183,8 @@ def _config_toml(scenario: Scenario, dbc_name: str, signals: dict[str, str], fps
               f"accel_bias_sigma_m_s2 = {imu.accel_bias_sigma_m_s2!r}",
               f"attitude_walk_deg_sqrt_s = {SIM_ATTITUDE_WALK_DEG_SQRT_S!r}"]
     if scenario.motion.wheelbase_m > 0.0:
-        # the vehicle's geometry, as a user would measure it (without one the config is as it
-        # was: every bench drive's config and cache key unchanged)
+        # the vehicle's geometry, as a user would measure it (without one the config's text is
+        # as it was)
         lines += [f"wheelbase_m = {scenario.motion.wheelbase_m!r}"]
     lines += [""]
     return "\n".join(lines)
