@@ -1053,7 +1053,9 @@ def test_a_wheelbase_keeps_the_gravity_reference_on_a_motorcycle_whose_rear_whee
     show by more than twice the pitch bar."""
     d = synth_drive("banked_curve_right_7deg.toml", wheelbase_m=1.45)
     yaw = d.truth.loc[d.truth["t_s"].between(8.0, 18.0), "yaw_deg"]   # the steady curve
-    assert yaw.min() > 0.40 and yaw.max() < 0.43     # asin(1.45 / 201.75 m), in the banked road's plane
+    # asin(1.45 / 198.25 m) (the lane's centre 1.75 m inside the 200 m curve) times cos(7 deg):
+    # the curvature in the banked road's plane, 0.416 deg
+    assert yaw.min() > 0.40 and yaw.max() < 0.43
     told = fuse(d.imu, d.vision, lever_arm_m=d.lever_arm_m, options=dataclasses.replace(OPTIONS, wheelbase_m=1.45)).fused
     assert rmse_deg(told, d.truth, "pitch_world_deg") < 0.25
     assert rmse_deg(told, d.truth, "roll_world_deg") < 0.12
@@ -1065,7 +1067,7 @@ def test_a_wheelbase_keeps_the_gravity_reference_on_a_motorcycle_whose_rear_whee
 def test_a_simulated_wheelbase_reaches_the_drive_config():
     """A scenario's ``[motion] wheelbase_m`` is written to the drive's ``[fusion]`` table, which
     the run reads as the filter's wheelbase; without one the config has no such key (every
-    bench drive's config, and so its cache key, as before)."""
+    bench drive's config text as before)."""
     import tomllib
 
     from drivesim.drive import _config_toml

@@ -344,7 +344,8 @@ def test_a_wheelbase_points_the_body_along_the_rear_wheel():
     tolerance of 0.003 deg is the curvature in the 5 deg banked, 2 % graded road plane against
     the horizontal one, 0.4 %), and the rear wheel rolls without side slip: 0.012 deg at most in
     the clothoids (the quasi-static chord), 0.07 deg through a double lane change, where the body
-    along the velocity has 0.77 deg. Without a wheelbase (every bench drive) the yaw stays 0."""
+    along the velocity has 0.77 deg. Without a wheelbase (every bench drive) the yaw stays 0:
+    test_bank_is_world_roll_minus_roll_with_zero_yaw_and_pitch."""
     L = 1.45
     traj = motorcycle(manoeuvres=(), pitch_amplitude_deg=0.0, lateral_offset_m=0.0, wheelbase_m=L)
     t = np.array([8.4])   # on the 1/250 arc (test_steady_turn_lean_and_specific_force)
