@@ -1154,6 +1154,15 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
 
 @nb.njit(cache=True)
+def _road_attitude(x):
+    """``(R_g'_from_o, R_o_from_v, roll, pitch)``: the road frame against level, the vehicle
+    against the road and its ZYX roll and pitch relative to the road."""
+    A = R_from_rpy_scalar(x[3], x[4], 0.0)
+    R = _tmm(A, R_from_rpy_scalar(x[0], x[1], x[2]))
+    return A, R, math.atan2(R[2, 1], R[2, 2]), -math.asin(max(-1.0, min(1.0, R[2, 0])))
+
+
+@nb.njit(cache=True)
 def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     """Specific-force model and Jacobian; see :meth:`AttitudeEKF.specific_force_model`."""
     g = GRAVITY_M_S2
@@ -1161,10 +1170,7 @@ def _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q):
     sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
     p, q, r = _body_rates(x, gyro, has_q)
     # attitude relative to the road and the road frame's rotation, in o
-    A = R_from_rpy_scalar(x[3], x[4], 0.0)          # R_g'_from_o
-    R = _tmm(A, R_from_rpy_scalar(phi, theta, x[2]))   # R_o_from_v
-    phi_o = math.atan2(R[2, 1], R[2, 2])
-    theta_o = -math.asin(max(-1.0, min(1.0, R[2, 0])))
+    A, R, phi_o, theta_o = _road_attitude(x)
     # the road frame's rotation in o: A^T (road turn rate z + grade rate y) + bank rate x
     wo0 = road_rate * A[2, 0] + x[15] * A[1, 0] + x[10]
     wo1 = road_rate * A[2, 1] + x[15] * A[1, 1]
@@ -1569,9 +1575,7 @@ def rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt):  # pragma: no cove
     if wb != 0.0:
         # the wheelbase's L (w' . e_n) e_lat (_specific_force), e_n and e_lat from the attitude
         # relative to the road
-        R = _tmm(R_from_rpy_scalar(x[3], x[4], 0.0), R_from_rpy_scalar(x[0], x[1], x[2]))
-        phi_o = math.atan2(R[2, 1], R[2, 2])
-        theta_o = -math.asin(max(-1.0, min(1.0, R[2, 0])))
+        _, _, phi_o, theta_o = _road_attitude(x)
         so, co, sto, cto = math.sin(phi_o), math.cos(phi_o), math.sin(theta_o), math.cos(theta_o)
         en, el = (-sto, so * cto, co * cto), (0.0, co, -so)
         for i in range(3):
