@@ -117,6 +117,20 @@ def test_rendered_marking_edges_match_projected_truth(t_s, distortion):
     assert np.abs(errors).max() < 0.1, f"edge errors px: {np.round(errors, 3)}"
 
 
+def _gyro_integration_error_deg(traj, t):
+    """The largest angle between the truth attitude and the simulated body rates integrated
+    (trapezoid) over the uniform times ``t`` from the truth's first attitude, deg."""
+    dt = t[1] - t[0]
+    w = traj.body_rate_rad_s(t)
+    R_true = traj.R_w_from_v(t)
+    R = R_true[0]
+    worst = 0.0
+    for k in range(len(t) - 1):
+        R = R @ so3_exp((w[k] + w[k + 1]) / 2 * dt)
+        worst = max(worst, np.linalg.norm(so3_log(R.T @ R_true[k + 1])))
+    return math.degrees(worst)
+
+
 def test_gyro_integration_reproduces_attitude():
     """Integrating the simulated body rates (noise- and bias-free, 200 Hz, trapezoid) over 10 s
     reproduces the truth attitude to within 0.05 deg, through a double lane change and a
@@ -125,13 +139,7 @@ def test_gyro_integration_reproduces_attitude():
     dt = 1 / 200
     t = np.arange(0.0, 10.0 + dt / 2, dt)
     w = traj.body_rate_rad_s(t)
-    R_true = traj.R_w_from_v(t)
-    R = R_true[0]
-    worst = 0.0
-    for k in range(len(t) - 1):
-        R = R @ so3_exp((w[k] + w[k + 1]) / 2 * dt)
-        worst = max(worst, np.linalg.norm(so3_log(R.T @ R_true[k + 1])))
-    assert math.degrees(worst) < 0.05
+    assert _gyro_integration_error_deg(traj, t) < 0.05
     # and the drive did something: lean beyond 15 deg, roll rate beyond 20 deg/s
     assert np.degrees(np.abs(traj.pose(t)["roll"])).max() > 15.0
     assert np.degrees(np.abs(w[:, 0])).max() > 20.0
@@ -355,9 +363,4 @@ def test_a_wheelbase_points_the_body_along_the_rear_wheel():
     assert np.abs(_rear_slip_deg(motorcycle(wheelbase_m=L), tt, L)).max() < 0.1
     assert np.abs(_rear_slip_deg(motorcycle(), tt, L)).max() > 0.5   # the check sees a slipping rear wheel
     # the gyros see the same rotation the truth reports (test_gyro_integration_reproduces_attitude)
-    w, R_true = traj.body_rate_rad_s(tt), traj.R_w_from_v(tt)
-    dt, R, worst = tt[1] - tt[0], R_true[0], 0.0
-    for k in range(len(tt) - 1):
-        R = R @ so3_exp((w[k] + w[k + 1]) / 2 * dt)
-        worst = max(worst, np.linalg.norm(so3_log(R.T @ R_true[k + 1])))
-    assert math.degrees(worst) < 0.05
+    assert _gyro_integration_error_deg(traj, tt) < 0.05
