@@ -1549,8 +1549,8 @@ def rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt):  # pragma: no cove
       almost nothing to an average over many samples whose weights change slowly from one to
       the next, which is what the filter takes of them: the update's.
 
-    ``H`` is :func:`_specific_force`'s Jacobian, whose gyro-bias columns are minus the path's
-    ``d f / d w``. Without a pitch gyro its channel carries no noise (``q = r tan(roll)``).
+    ``H`` is :func:`_specific_force`'s Jacobian, whose gyro-bias columns are minus the model's
+    whole ``d f / d w`` (the path's turn, the lever arm's and the wheelbase's terms). Without a pitch gyro its channel carries no noise (``q = r tan(roll)``).
     ``dot_dt`` not finite: not differenced.
 
     The sample's part is not small: a 0.05 deg/s gyro differenced at 100 Hz is 0.12 rad/s^2 of
@@ -1559,15 +1559,10 @@ def rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt):  # pragma: no cove
     the gate, 10 % of the benchmark drives' gravity updates failed its 0.999 (0.1 % expected).
     In the update as well, the banks were as good but the sigmas wider still (the 60 s drive's
     NEES share 60 -> 54 %, over ten accelerometer-bias draws of the right-hand drive 56 -> 45 %)."""
-    p, q, r = _body_rates(x, gyro, has_q)
-    w = (p, q, r)
-    wr = p * rho[0] + q * rho[1] + r * rho[2]
-    # d f / d w: the path's turn (minus the bias columns) and the lever arm's centripetal term,
-    # d (w x (w x rho)) / d w = (w.rho) I + w rho^T - 2 rho w^T
-    Jw = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            Jw[i, j] = (wr if i == j else 0.0) + w[i] * rho[j] - 2.0 * rho[i] * w[j]
+    # d f / d w is minus H's gyro-bias columns: the path's turn, the lever arm's centripetal
+    # term and the wheelbase's (the lever arm's was added here as well until the twenty-fifth
+    # session, counted twice since H's columns took it in the thirteenth)
+    Jw = np.zeros((3, 3))
     inv = 1.0 / dot_dt if math.isfinite(dot_dt) and dot_dt > 0.0 else 0.0
     # d (w' x rho) / d w' = -[rho]x
     Ja = np.array([[0.0, rho[2], -rho[1]], [-rho[2], 0.0, rho[0]], [rho[1], -rho[0], 0.0]]) * inv
