@@ -196,6 +196,9 @@ class FusionStream:
         #: when the vehicle gets there (s), the rate (rad/s), the frame's capture time (s); sorted
         #: (so by the first: a probe ``(t, inf, inf)`` bisects after every entry due at ``t``).
         self._twist_map: list[tuple[float, float, float]] = []
+        #: :meth:`_patch_rate`'s medians by due time: ``(since, newest capture, median)``, taken
+        #: while no frame is mapped within two patches of it (:meth:`_map_twist` drops the rest)
+        self._patch_memo: dict[float, tuple[float, float, float]] = {}
         #: Frames captured at or before this time are left out of the map: a re-acquisition of
         #: the road states (the bank, the curvature) at it, their rates converted at the state
         #: that had diverged (``_map_twist``; a review)
@@ -370,6 +373,7 @@ class FusionStream:
         self._hist.clear()
         self._decisions.clear()
         self._twist_map.clear()
+        self._patch_memo.clear()
         # results from before the gap (after a clock that went back: all) do not carry across
         self._drop_pending(lambda p: p.t_s <= newest or isinstance(p, RollAhead))
         if clock_reset:
@@ -522,11 +526,17 @@ class FusionStream:
         x = self.ekf.x
         _, turned, phi = road_ahead_as_seen(x[S.BANK], x[S.CURVATURE], m.roll_lookahead_m, x[S.GRADE])
         rate = x[S.SPEED] * (m.road_twist_rad_m - turned) / math.cos(phi)
-        bisect.insort_right(self._twist_map, (m.t_s + ahead_s, rate, m.t_s))
+        due = m.t_s + ahead_s
+        bisect.insort_right(self._twist_map, (due, rate, m.t_s))
         # what a replay can still reach (history_s back) needs the road from there on
-        old = bisect.bisect_left(self._twist_map, (m.t_s - 2.0 * self.options.history_s - _TWIST_SPAN_S,))
+        cut = m.t_s - 2.0 * self.options.history_s - _TWIST_SPAN_S
+        old = bisect.bisect_left(self._twist_map, (cut,))
         if old:
             del self._twist_map[:old]
+        # the medians of the patches this entry joined, or that lost entries, are taken anew
+        memo = self._patch_memo
+        for key in [k for k in memo if abs(k - due) <= 2.0 * _PATCH_S or k < cut + 2.0 * _PATCH_S]:
+            del memo[key]
 
     def _bank_rate_target(self, t: float) -> float:
         """The bank rate the filter's Gauss-Markov rate reverts to at ``t``: the road's, from the
@@ -559,12 +569,20 @@ class FusionStream:
         :data:`_PATCH_S` of ``due``: on dashed lines one road patch is measured by every frame of
         a dash, and the map's edges would otherwise take one frame's twist for the whole gap to
         the next patch (a review: one frame's twist 0.3 deg/m off moved the bank 2.5 deg)."""
+        since = self._map_from
+        memo = self._patch_memo.get(due)
+        if memo is not None and memo[0] == since and memo[1] < t:
+            return memo[2]      # the same patch, every frame of it captured before t
         lo = bisect.bisect_left(self._twist_map, (due - _PATCH_S,))
         hi = bisect.bisect_right(self._twist_map, (due + _PATCH_S, math.inf, math.inf))
-        since = self._map_from
-        r = sorted(e[1] for e in self._twist_map[lo:hi] if since < e[2] < t)
+        patch = [e for e in self._twist_map[lo:hi] if since < e[2]]
+        newest = max(e[2] for e in patch)
+        r = sorted(e[1] for e in patch if e[2] < t)
         k = len(r)
-        return r[k // 2] if k % 2 else 0.5 * (r[k // 2 - 1] + r[k // 2])
+        median = r[k // 2] if k % 2 else 0.5 * (r[k // 2 - 1] + r[k // 2])
+        if newest < t:          # a run in time (a replay's earlier t leaves frames out)
+            self._patch_memo[due] = (since, newest, median)
+        return median
 
     def _speed_update(self, speed: float, s: _ImuSample | None = None) -> bool:
         """Wheel speed; the first one (and one after a run of rejections) sets the state; the
