@@ -1553,7 +1553,8 @@ def rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt):  # pragma: no cove
       the next, which is what the filter takes of them: the update's.
 
     ``H`` is :func:`_specific_force`'s Jacobian, whose gyro-bias columns are minus the model's
-    whole ``d f / d w`` (the path's turn, the lever arm's and the wheelbase's terms). Without a pitch gyro its channel carries no noise (``q = r tan(roll)``).
+    whole ``d f / d w`` (the path's turn, the lever arm's and the wheelbase's terms). Without a
+    pitch gyro its channel carries no noise (``q = r tan(roll)``).
     ``dot_dt`` not finite: not differenced.
 
     The sample's part is not small: a 0.05 deg/s gyro differenced at 100 Hz is 0.12 rad/s^2 of

@@ -879,6 +879,12 @@ def test_the_twist_map_interpolates_the_road_measured_by_then():
     patch = [(10.0 + 0.001 * k, -2.0, 9.3 + 0.033 * k) for k in range(19)] + [(10.02, 10.0, 9.93)]
     target = stream([*patch, (10.6, 0.0, 9.95)])
     assert target(10.31) == pytest.approx(-1.0, abs=0.01)
+    # a patch's median is kept once every frame of it was captured; asked again for an earlier
+    # time (a replay's), the frames captured after that time are left out again
+    target = stream([(10.0, -2.0, 9.3), (10.01, 4.0, 9.9), (10.6, 0.0, 9.2)])
+    assert target(9.95) == pytest.approx(1.0)
+    assert target(9.5) == pytest.approx(-2.0)
+    assert target(9.95) == pytest.approx(1.0)
 
 
 def test_twist_changing_across_the_view_is_modelled(drive, forward):
