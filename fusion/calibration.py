@@ -40,7 +40,7 @@ from imu.config import ImuMount
 from imu.errors import ImuConfigError
 
 from .config import Table, read_toml
-from .ekf import NoiseModel, S
+from .noise import NoiseModel, S
 from .errors import ConfigError
 from .files import write_bytes_atomically
 

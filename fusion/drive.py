@@ -6,6 +6,7 @@ Every problem is one line naming the file: a missing file, a ``frames.csv`` that
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,8 @@ from imu.log_source import log_suffix
 from .config import VideoTiming
 from .errors import InputError
 
-__all__ = ["DriveFiles", "SAMPLE_DRIVE", "read_frame_times", "read_truth", "find_drive_files"]
+__all__ = ["DriveFiles", "SAMPLE_DRIVE", "SPEED_MAX_AGE_S", "SPEED_SPAN_WARN_S", "find_drive_files", "frame_speeds", "last_speed",
+           "read_frame_times", "read_truth"]
 
 #: The bundled sample drive (a simulated 12 s banked right-hand curve, 640x360 at 30 fps),
 #: rendered from ``configs/scenarios/sample_banked_curve.toml``.
@@ -379,3 +381,44 @@ def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str,
         return None
     return (f"{video} holds {n_video} frames; {frames_name} lists up to frame {last}: the last {extra} "
             f"({extra * dt:.1f} s) are not processed")
+
+
+#: A wheel speed that starts this long after the IMU samples, or ends this long before them,
+#: is said (s).
+SPEED_SPAN_WARN_S = 1.0
+
+
+#: A wheel speed older than this at a frame (s) gives the frame no speed.
+SPEED_MAX_AGE_S = 0.5
+
+
+def frame_speeds(imu: pd.DataFrame, t_s: np.ndarray, max_age_s: float = SPEED_MAX_AGE_S) -> np.ndarray:
+    """The wheel speed (m/s) at times ``t_s`` on the CAN clock, for the distance the vision
+    estimator travels between frames (:func:`vision.video.estimate_video`): the fresh speed
+    samples of the IMU table through :func:`last_speed`."""
+    t_s = np.asarray(t_s, dtype=float)
+    if "speed_m_s" not in imu:
+        return np.full(t_s.size, math.nan)
+    fresh = imu["fresh_speed"].to_numpy(dtype=bool) if "fresh_speed" in imu else np.ones(len(imu), bool)
+    return last_speed(imu["t_s"].to_numpy(dtype=float)[fresh], imu["speed_m_s"].to_numpy(dtype=float)[fresh], t_s,
+                      max_age_s)
+
+
+def last_speed(speed_t_s: np.ndarray, speed_m_s: np.ndarray, t_s, max_age_s: float = SPEED_MAX_AGE_S) -> np.ndarray:
+    """The last finite speed sample (times ``speed_t_s``, increasing) at or before each of
+    ``t_s``, NaN where there is none within ``max_age_s``. The last sample, not an
+    interpolation, so that :class:`fusion.realtime.LiveFusion`, which has no later sample when a
+    frame arrives, computes the same travel as the offline run (at 100 Hz and 1 m/s^2 the two
+    differ by 0.01 m/s, 0.04 % of the travel at 25 m/s)."""
+    t_s = np.atleast_1d(np.asarray(t_s, dtype=float))
+    ts, v = np.asarray(speed_t_s, dtype=float), np.asarray(speed_m_s, dtype=float)
+    ok = np.isfinite(v)
+    ts, v = ts[ok], v[ok]
+    out = np.full(t_s.size, math.nan)
+    if ts.size == 0:
+        return out
+    k = np.searchsorted(ts, t_s, side="right") - 1
+    have = k >= 0
+    out[have] = v[k[have]]
+    out[have & (t_s - ts[np.maximum(k, 0)] > max_age_s)] = math.nan
+    return out

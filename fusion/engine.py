@@ -22,15 +22,16 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from operator import attrgetter
 
 import numpy as np
 
 from vision.frames import wrap_angle
 
-from .ekf import (DIM_X, GRAVITY_M_S2, AttitudeEKF, ImuStep, NoiseModel, RollAhead, S, VisionMeasurement, accel_r_scale,
+from .ekf import (DIM_X, GRAVITY_M_S2, AttitudeEKF, ImuStep, RollAhead, S, VisionMeasurement, accel_r_scale,
                   relative_outputs, road_ahead_as_seen, vision_hx)
+from .options import FusionOptions
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 
@@ -65,39 +66,6 @@ def _all_finite(a: np.ndarray) -> bool:
     """Whether every value of a small array is finite (per sample: a quarter of the time of
     ``np.all(np.isfinite(a))``, whose reduction machinery costs 2 us a call)."""
     return all(map(math.isfinite, a.ravel().tolist()))
-
-
-@dataclass(frozen=True)
-class FusionOptions:
-    noise: NoiseModel = field(default_factory=NoiseModel)
-    use_vision: bool = True
-    #: Apply the gravity reference every n-th IMU sample (1: every sample).
-    gravity_every: int = 1
-    #: How far back late vision results are still applied, s.
-    history_s: float = 1.0
-    #: Without a lane fit for this long the road is assumed to turn with the vehicle (yaw
-    #: relative to the road held, the curvature state unused), s.
-    lane_fit_hold_s: float = 0.25
-    #: After this many vision results in a row fail the chi-square gate, the road states
-    #: (yaw relative to the road, bank, grade) are re-acquired from the next one: their
-    #: covariance is reset to the initial one, so that a filter that drifted while the lanes
-    #: were lost cannot lock itself out.
-    reacquire_after_rejections: int = 10
-    #: Apply the vision roll when the vehicle reaches the road it was measured on
-    #: (:class:`fusion.ekf.RollAhead`) instead of modelling the bank ahead with the bank rate.
-    defer_roll: bool = True
-    #: The bank rate reverts to the road's bank rate that the frames' twists mapped ahead, where
-    #: there is one (:meth:`FusionStream._bank_rate_target`), instead of to 0.
-    bank_rate_map: bool = True
-    #: IMU samples further apart than this (a gap in the CAN stream) are not integrated
-    #: across: the mean of two gyro readings says nothing about a motorcycle's roll over
-    #: more than a fifth of a second (its roll modes are at 1-2 Hz). The filter starts again
-    #: from the sample after the gap (:meth:`FusionStream.restart`), s.
-    max_imu_gap_s: float = 0.2
-    #: The rear wheel's contact point behind the front one (the vehicle's origin), m: the
-    #: origin moves sideways at the wheelbase times the heading rate (the rear wheel rolls
-    #: without side slip; :class:`fusion.ekf.AttitudeEKF`). 0: along the body's heading.
-    wheelbase_m: float = 0.0
 
 
 @dataclass(frozen=True)

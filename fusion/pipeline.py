@@ -21,12 +21,14 @@ from tqdm import tqdm
 
 from vision.video import SAG_COLUMNS, TWIST_RESPONSE_COLUMNS, current_names
 
+from .drive import SPEED_SPAN_WARN_S
 from .ekf import GRAVITY_M_S2, S, relative_outputs
-from .engine import FusionOptions, FusionStream
+from .engine import FusionStream
 from .errors import InputError
+from .options import FusionOptions
 from .smoother import rts_smooth
 
-__all__ = ["FusedRun", "SPEED_MAX_AGE_S", "frame_speeds", "fuse", "last_speed", "outputs_table", "output_covariance", "plain_bank", "vision_inputs"]
+__all__ = ["FusedRun", "fuse", "outputs_table", "output_covariance", "plain_bank", "vision_inputs"]
 
 GYRO_COLS = ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s")
 ACCEL_COLS = ("accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2")
@@ -273,11 +275,6 @@ def imu_setup_warnings(accel_m_s2: np.ndarray, speed_known: np.ndarray, gravity_
     return out
 
 
-#: A wheel speed that starts this long after the IMU samples, or ends this long before them,
-#: is said (s).
-SPEED_SPAN_WARN_S = 1.0
-
-
 def speed_span_warnings(t_s: np.ndarray, speed_known: np.ndarray, fresh: np.ndarray) -> list[str]:
     """A wheel speed that starts late or stops early (a CAN log's gap finder sees only gaps
     between frames): before it the world roll, pitch and bank rest on the gyros and the vision;
@@ -293,42 +290,6 @@ def speed_span_warnings(t_s: np.ndarray, speed_known: np.ndarray, fresh: np.ndar
     if t_s[-1] - last > SPEED_SPAN_WARN_S:
         out.append(f"no wheel speed in the last {t_s[-1] - last:.1f} s of the IMU samples: the filter carried the "
                    "last speed on (its acceleration state), and the gravity reference with it")
-    return out
-
-
-#: A wheel speed older than this at a frame (s) gives the frame no speed.
-SPEED_MAX_AGE_S = 0.5
-
-
-def frame_speeds(imu: pd.DataFrame, t_s: np.ndarray, max_age_s: float = SPEED_MAX_AGE_S) -> np.ndarray:
-    """The wheel speed (m/s) at times ``t_s`` on the CAN clock, for the distance the vision
-    estimator travels between frames (:func:`vision.video.estimate_video`): the fresh speed
-    samples of the IMU table through :func:`last_speed`."""
-    t_s = np.asarray(t_s, dtype=float)
-    if "speed_m_s" not in imu:
-        return np.full(t_s.size, math.nan)
-    fresh = imu["fresh_speed"].to_numpy(dtype=bool) if "fresh_speed" in imu else np.ones(len(imu), bool)
-    return last_speed(imu["t_s"].to_numpy(dtype=float)[fresh], imu["speed_m_s"].to_numpy(dtype=float)[fresh], t_s,
-                      max_age_s)
-
-
-def last_speed(speed_t_s: np.ndarray, speed_m_s: np.ndarray, t_s, max_age_s: float = SPEED_MAX_AGE_S) -> np.ndarray:
-    """The last finite speed sample (times ``speed_t_s``, increasing) at or before each of
-    ``t_s``, NaN where there is none within ``max_age_s``. The last sample, not an
-    interpolation, so that :class:`fusion.realtime.LiveFusion`, which has no later sample when a
-    frame arrives, computes the same travel as the offline run (at 100 Hz and 1 m/s^2 the two
-    differ by 0.01 m/s, 0.04 % of the travel at 25 m/s)."""
-    t_s = np.atleast_1d(np.asarray(t_s, dtype=float))
-    ts, v = np.asarray(speed_t_s, dtype=float), np.asarray(speed_m_s, dtype=float)
-    ok = np.isfinite(v)
-    ts, v = ts[ok], v[ok]
-    out = np.full(t_s.size, math.nan)
-    if ts.size == 0:
-        return out
-    k = np.searchsorted(ts, t_s, side="right") - 1
-    have = k >= 0
-    out[have] = v[k[have]]
-    out[have & (t_s - ts[np.maximum(k, 0)] > max_age_s)] = math.nan
     return out
 
 

@@ -46,10 +46,11 @@ from vision.twistmap import travel_between
 
 from .calibration import calibration_from_state, pitch_gyro_prior_deg_s
 from .config import DriveConfig, load_config
+from .drive import last_speed
 from .engine import Estimate, FusionStream
 from .errors import ConfigError
 from .options import fusion_options_from_table
-from .pipeline import implausible_vision_warning, last_speed, vision_refused_warning
+from .pipeline import implausible_vision_warning, vision_refused_warning
 
 __all__ = ["LiveFusion"]
 
@@ -231,7 +232,7 @@ class LiveFusion:
         """A camera frame captured at ``t_s`` (bus clock, before the configured camera offset).
         The estimator is told the distance travelled since the last frame from the wheel speed
         (for the road's twist, :attr:`vision.options.EstimatorOptions.road_twist`), by the rule
-        of the offline run (:func:`fusion.pipeline.last_speed`) over the samples the bus has
+        of the offline run (:func:`fusion.drive.last_speed`) over the samples the bus has
         released and those still open in the decoder's align window
         (:meth:`imu.StreamDecoder.pending_speeds`). A frame handed in before the CAN frames of
         its capture time have arrived sees the speed before, a few millimetres of travel off the

@@ -18,7 +18,7 @@ import numpy as np
 
 from vision.frames import wrap_angle
 
-from .ekf import S
+from .noise import S
 from .engine import StepRecord
 
 __all__ = ["rts_smooth"]

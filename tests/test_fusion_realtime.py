@@ -15,7 +15,8 @@ import pytest
 
 from fusion.config import load_config
 from fusion.options import fusion_options_from_table
-from fusion.pipeline import frame_speeds, fuse
+from fusion.drive import frame_speeds
+from fusion.pipeline import fuse
 from fusion.realtime import MAX_GLITCH_FRAMES, LiveFusion
 from imu import read_log
 from vision.options import options_from_table

@@ -37,7 +37,8 @@ def run_once(drive: Path, scale: float) -> tuple[dict, float]:
     from fusion.drive import read_frame_times
     from fusion.metrics import consistency, rmse_table
     from fusion.options import fusion_options_from_table
-    from fusion.pipeline import frame_speeds, fuse
+    from fusion.drive import frame_speeds
+    from fusion.pipeline import fuse
     from imu import read_log
     from vision.options import options_from_table
     from vision.video import estimate_video

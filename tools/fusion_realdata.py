@@ -183,7 +183,7 @@ def gyro_drift(name: str, imu: pd.DataFrame, truth: pd.DataFrame) -> None:
     error taken out: the rates' bias is not known), against the filter's default allowance for
     it, ``sqrt(gyro_noise^2 dt + attitude_walk^2)`` per sqrt(s) (``[fusion]
     attitude_walk_deg_sqrt_s``; the simulator's drives give 0.02, what their gyros leave out)."""
-    from fusion.ekf import NoiseModel
+    from fusion.noise import NoiseModel
     from fusion.metrics import gyro_attitude_drift
 
     ok = imu[["gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s"]].notna().all(axis=1).to_numpy()

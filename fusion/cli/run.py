@@ -102,13 +102,13 @@ def _run(args: argparse.Namespace) -> int:
     from ..calibration import (apply_calibration, calibration_table, pitch_gyro_prior_deg_s, read_calibration,
                                write_calibration)
     from ..config import load_config
-    from ..drive import (check_overlap, check_truth_overlap, frames_outside_warning, frames_warnings,
+    from ..drive import (check_overlap, check_truth_overlap, frame_speeds, frames_outside_warning, frames_warnings,
                          read_frame_times, read_truth, vision_warnings)
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
-    from ..pipeline import frame_gap_limit_s, frame_speeds, frames_to_samples, fuse, plain_bank
-    from ..report import ReportInputs, write_report
     from ..timing import estimate_camera_offset
+    # (the filter, fusion.pipeline, and the report are loaded while the vision workers estimate:
+    # imu_only_run below)
 
     from . import STARTED_S, settle_heap
 
@@ -193,9 +193,14 @@ def _run(args: argparse.Namespace) -> int:
 
     imu_only_box: dict = {}
 
-    def imu_only_run() -> None:   # needs no vision: done while the vision workers estimate
+    def imu_only_run() -> None:
+        # Needs no vision: done while the vision workers estimate, and so is loading the filter
+        # (filterpy, which loads scipy.stats) and the report (0.7-1.1 s of imports, measured by
+        # python -X importtime): the workers fork from this process without them.
+        from ..pipeline import fuse
         imu_only_box["run"] = fuse(imu, None, lever_arm_m=cfg.imu.position_m, has_pitch_rate=has_pitch_rate,
                                    options=fusion_opts)
+        from .. import report  # noqa: F401
 
     t0 = time.perf_counter()
     vision, vstats = estimate_video(files.video, frames, cfg.camera, cfg.mount, cfg.road, vision_opts,
@@ -211,6 +216,9 @@ def _run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     write_tables(vision, tmp / "vision")
     timings["outputs"] = time.perf_counter() - t0   # the tables grow with the drive: not a fixed cost
+
+    from ..pipeline import frame_gap_limit_s, frames_to_samples, fuse, plain_bank
+    from ..report import ReportInputs, write_report
 
     time_offset = None
     if args.estimate_time_offset or settings.estimate_time_offset:

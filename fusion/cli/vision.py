@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
 def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
     """The wheel speed at each frame time (frames.csv's clock plus the config's
     ``camera_time_offset_s``), decoded from ``--can`` as ``vifusion run`` does
-    (:func:`fusion.pipeline.frame_speeds`)."""
+    (:func:`fusion.drive.frame_speeds`)."""
     import numpy as np
 
     from imu import read_log
@@ -109,7 +109,7 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
     from ..drive import check_overlap, frames_outside_warning
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
-    from ..pipeline import SPEED_SPAN_WARN_S, frame_speeds
+    from ..drive import SPEED_SPAN_WARN_S, frame_speeds
 
     for path in (args.can, args.dbc):
         if path is not None and not path.is_file():
