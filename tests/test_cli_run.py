@@ -1168,14 +1168,15 @@ def test_a_lever_arm_in_millimetres_and_a_spaced_header(copy, tmp_path):
     one_line_error(vifusion("run", "--drive", copy, "--out", tmp_path / "out"), "position_m", "metres")
 
 
-@pytest.mark.parametrize("after", ["argparse", "numpy", "fusion.config", "vision.frames"])
+@pytest.mark.parametrize("after", ["argparse", "numpy", "fusion.config", "vision.frames", "filterpy"])
 def test_ctrl_c_while_the_command_loads_is_one_line(tmp_path, after):
     """Ctrl-C while `vifusion run` loads its modules: `error: interrupted`, exit 130, no
     traceback (a review: an interrupt in the first quarter second printed the imports'; numpy
     and numba loaded before the command could say it). The signal is sent the moment the child
     reports ``after`` imported (``-X importtime``), so each phase of the start-up is hit, not a
     time that a busy machine shifts: the command line's first imports, numpy (the error types'
-    modules), the subcommands (the parser), numba (the run). Left to Python: its own start-up
+    modules), the subcommands (the parser), numba (the run), the filter (loaded while the vision
+    workers estimate). Left to Python: its own start-up
     and ``runpy`` before the program (about 25 ms here). SIGINT is put back to its default in
     the child: a test run started with it ignored (``nohup ... &``) passes the ignoring on."""
     import signal
@@ -1195,6 +1196,21 @@ def test_ctrl_c_while_the_command_loads_is_one_line(tmp_path, after):
         pytest.fail(f"{after} was not imported by the run: {''.join(said)[-500:]}")
     said += [line for line in p.stderr if not line.startswith("import time:")]
     assert p.wait(timeout=120) == 130 and "".join(said) == "error: interrupted\n"
+
+
+def test_the_vision_workers_start_before_the_filter_loads(tmp_path):
+    """`vifusion run` forks its vision workers before it loads the filter: filterpy and the
+    scipy.stats it imports (0.7-1.1 s of imports by ``-X importtime``, a third of the start-up)
+    load while the workers estimate, when the run's process has nothing else to do, not while
+    a core stands idle before them (docs/fusion-notes.md, twenty-fifth session). The first
+    worker's fork is ``multiprocessing.popen_fork``'s import."""
+    p = subprocess.run([sys.executable, "-X", "importtime", "-m", "fusion", "run", "--out", str(tmp_path / "out"),
+                        "--quiet", "--no-report", "--workers", "2"], capture_output=True, text=True, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-2000:]
+    order = [line.rsplit("|", 1)[-1].strip() for line in p.stderr.splitlines() if line.startswith("import time:")]
+    fork = order.index("multiprocessing.popen_fork")
+    for heavy in ("filterpy", "scipy.stats", "fusion.ekf"):
+        assert order.index(heavy) > fork, heavy
 
 
 @pytest.mark.parametrize("where", ["the watch", "after the watch"])
