@@ -199,7 +199,7 @@ white noise is in the prediction: its covariance (:func:`rate_noise_cov`) joins 
 accelerometer's, all of it in the gate, the part that accumulates over samples (the rates'
 own; the differenced part telescopes) in the update.
 
-The wheelbase (``wheelbase_m``, ``L``; :class:`fusion.engine.FusionOptions`, ``[fusion]``). The
+The wheelbase (``wheelbase_m``, ``L``; :class:`fusion.options.FusionOptions`, ``[fusion]``). The
 origin is the front wheel's contact point (INTERFACE.md), but the wheel that rolls without side
 slip is the rear one, which is not steered: the origin moves sideways at ``L w_n``, with ``w_n =
 w . e_n`` the heading rate about the road's normal, along ``e_lat`` (the body's y in the road

@@ -37,7 +37,7 @@ __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
 
 
 #: Without a vision result for this long the bank rate decays with its lane-loss time constant
-#: (:attr:`fusion.ekf.NoiseModel.bank_rate_tau_no_vision_s`): three frames at 30 fps.
+#: (:attr:`fusion.noise.NoiseModel.bank_rate_tau_no_vision_s`): three frames at 30 fps.
 _VISION_GAP_S = 0.1
 
 #: The twist map's interpolation spans no more than this between two roads measured, s.
@@ -517,7 +517,7 @@ class FusionStream:
         twists the frames captured up to ``t`` measured ahead, linear between the last road
         reached and the next one, each the median of its patch (:meth:`_patch_rate`; with the two
         more than :data:`_TWIST_SPAN_S` apart, the next one's);
-        0 within :attr:`fusion.ekf.NoiseModel.bank_rate_map_deadband_rad_s` (steady road); NaN
+        0 within :attr:`fusion.noise.NoiseModel.bank_rate_map_deadband_rad_s` (steady road); NaN
         with none ahead (the rate decays as it did without the map). Frames captured at or
         before the last re-acquisition (``_map_from``) are left out."""
         entries, since = self._twist_map, self._map_from

@@ -90,7 +90,7 @@ def implausible_vision_warning(n: int) -> str:
 
 
 #: Share of the vision results the filter decided on (used or refused by its chi-square gate,
-#: :attr:`fusion.ekf.NoiseModel.gate_probability` 0.999) over which a run warns. Measured
+#: :attr:`fusion.noise.NoiseModel.gate_probability` 0.999) over which a run warns. Measured
 #: (README, "Fusion": a camera clock off the bus): up to 0.3 % of them refused on the HD
 #: benchmark drives and 3.5 % on the 640x360 sample drive; with the frames' times 0.2 s late
 #: 30-31 % on four HD drives (the hold-out drive 1 %, the sample 20 %), 0.5 s off either way

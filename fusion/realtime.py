@@ -8,7 +8,7 @@ thread that takes longer than an IMU interval would: the filter rolls back and r
 The methods may be called from different threads (a bus thread, a camera thread): the filter
 is behind a lock, and the vision estimator runs outside it. A bus clock that restarts (the
 decoder's :data:`imu.can_source.CLOCK_RESET_AFTER`) restarts the filter, keeping the IMU
-biases; so does a gap in the IMU samples (:attr:`fusion.engine.FusionOptions.max_imu_gap_s`).
+biases; so does a gap in the IMU samples (:attr:`fusion.options.FusionOptions.max_imu_gap_s`).
 
 Example (a live bus; the README's "Embedding" has a whole program with a camera thread)::
 

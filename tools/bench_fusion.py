@@ -364,7 +364,7 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     either way: the look-ahead spans about that) and near runoffs: per angle and part, RMS error
     after the road-in-view model (what the filter is given), median sigma, and the RMS of
     error / sigma with the sigma as the filter widens it (``noise``, a
-    :class:`fusion.ekf.NoiseModel`: scaled, floored, and a fraction of the modelled road-in-view
+    :class:`fusion.noise.NoiseModel`: scaled, floored, and a fraction of the modelled road-in-view
     effect added, here from the true twist; the filter takes it from its own bank rate)."""
     from fusion.metrics import interp_truth
 

@@ -154,7 +154,7 @@ def residuals(name: str, imu: pd.DataFrame, truth: pd.DataFrame, window_s: float
     residual's mean, its RMS per sample about that mean, and averaged over ``window_s``, and the
     white noise per sample whose average over ``window_s`` has that RMS: the equivalent of
     ``[fusion] accel_noise_m_s2`` at the time scale of the gravity reference
-    (:attr:`fusion.ekf.NoiseModel.accel_meas_m_s2` takes its default from comma2k19's)."""
+    (:attr:`fusion.noise.NoiseModel.accel_meas_m_s2` takes its default from comma2k19's)."""
     t = imu["t_s"].to_numpy()
     ok = imu["speed_m_s"].notna().to_numpy()
     v = np.interp(t, t[ok], imu["speed_m_s"].to_numpy()[ok])
