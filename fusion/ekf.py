@@ -1272,7 +1272,7 @@ def _propagate(x, P, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_var, y
 
 
 @nb.njit(cache=True)
-def rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt):  # pragma: no cover (numba)
+def rate_noise_cov(x, H, rho, has_q, gyro_var, dot_dt):  # pragma: no cover (numba)
     """What the gyro's white noise (``gyro_var``, rad^2/s^2 per sample and axis) carries into
     the specific-force model through its inputs, as covariances (m/s^2)^2 ``(white, sample)``.
     The inputs are the rates, in the path's turn ``v (w x e)`` and the lever arm's ``w x (w x
@@ -1301,7 +1301,10 @@ def rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt):  # pragma: no cove
     # d f / d w is minus H's gyro-bias columns: the path's turn, the lever arm's centripetal
     # term and the wheelbase's (the lever arm's was added here as well until the twenty-fifth
     # session, counted twice since H's columns took it in the thirteenth)
-    Jw = np.zeros((3, 3))
+    Jw = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            Jw[i, j] = -H[i, 5 + j]
     inv = 1.0 / dot_dt if math.isfinite(dot_dt) and dot_dt > 0.0 else 0.0
     # d (w' x rho) / d w' = -[rho]x
     Ja = np.array([[0.0, rho[2], -rho[1]], [-rho[2], 0.0, rho[0]], [rho[1], -rho[0], 0.0]]) * inv
@@ -1315,14 +1318,10 @@ def rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt):  # pragma: no cove
         for i in range(3):
             for j in range(3):
                 Ja[i, j] += wb * el[i] * en[j] * inv
-    t = math.tan(x[0])
-    for i in range(3):
-        Jw[i, 0] -= H[i, 5]
-        if has_q:
-            Jw[i, 1] -= H[i, 6]
-            Jw[i, 2] -= H[i, 7]
-        else:   # no pitch channel: q = r tan(roll) moves with r (H's column 7 has it for the path)
-            Jw[i, 2] += Jw[i, 1] * t - H[i, 7]
+    if not has_q:
+        # no pitch channel, no noise on it: q = r tan(roll) moves with r, which H's column 7
+        # carries (its column 6 is the modelled pitch rate's state, not a measured rate)
+        for i in range(3):
             Jw[i, 1] = 0.0
             Ja[i, 1] = 0.0
     A = Jw + Ja
@@ -1336,7 +1335,7 @@ def _gravity_update(x, P, z, gyro, gyro_dot, rho, road_rate, has_q, R, gate, gyr
     (:func:`rate_noise_cov`); a rejection returns the gate's ``S``."""
     f, H = _specific_force(x, gyro, gyro_dot, rho, road_rate, has_q)
     y = z - f
-    white, full = rate_noise_cov(x, H, gyro, rho, has_q, gyro_var, dot_dt)
+    white, full = rate_noise_cov(x, H, rho, has_q, gyro_var, dot_dt)
     PHT = _mmt(P, H)
     S0 = _mm(H, PHT)
     S_gate = S0 + R + full

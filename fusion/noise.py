@@ -1,9 +1,13 @@
 """The filter's state indices and noise model: what :mod:`fusion.ekf` squares into ``Q`` and ``R``
 (1-sigma values in natural units), and the measurement sigmas it derives from the vision's own.
 
-Kept apart from the filter (filterpy, SciPy) so that reading a config's ``[fusion]`` table
+Kept apart from the filter (filterpy, scipy.stats) so that reading a config's ``[fusion]`` table
 (:mod:`fusion.options`, :mod:`fusion.calibration`) does not load them: ``vifusion run`` imports
 the filter while its vision workers estimate, not before they start (a second of its start-up).
+
+The sigma kernels below are compiled into :mod:`fusion.ekf`'s updates, and numba's cache keys a
+kernel by its own file only: after editing one of them, clear ``fusion/__pycache__`` (or touch
+``fusion/ekf.py``), or the updates keep the old one (a fresh install compiles anew).
 """
 
 from __future__ import annotations

@@ -120,13 +120,13 @@ def test_gravity_noise_of_the_gyro_inputs_matches_monte_carlo(has_q, roll, speed
         g1, g0 = gyro + noise[k, 1], prev + noise[k, 0]
         f[k] = ekf._specific_force(x, g1, (g1 - g0) / dt, rho, 0.05, has_q)[0]
     measured = np.cov(f.T)
-    white, model = ekf.rate_noise_cov(x, H, gyro, rho, has_q, sigma**2, dt)
+    white, model = ekf.rate_noise_cov(x, H, rho, has_q, sigma**2, dt)
     scale = np.abs(model).max()
     np.testing.assert_allclose(model, measured, atol=0.05 * scale + 4 * scale / math.sqrt(n))
     assert math.sqrt(model[1, 1]) > 0.05      # m/s^2: not small next to an accelerometer's 0.03
     # the part that accumulates: the rates' own, which is all there is without differencing
     # (the first sample), far smaller at this lever arm
-    white_only, undifferenced = ekf.rate_noise_cov(x, H, gyro, rho, has_q, sigma**2, math.inf)
+    white_only, undifferenced = ekf.rate_noise_cov(x, H, rho, has_q, sigma**2, math.inf)
     np.testing.assert_allclose(white, white_only, rtol=1e-12, atol=1e-18)
     np.testing.assert_allclose(undifferenced, white_only, rtol=1e-12, atol=1e-18)
     assert np.trace(white) < 0.1 * np.trace(model)
@@ -160,7 +160,7 @@ def test_the_rates_noise_in_the_gravity_model_is_its_rate_derivative(has_q, whee
         J[:, j] = (ekf._specific_force(x, gyro + d, gyro_dot, rho, 0.05, has_q)[0]
                    - ekf._specific_force(x, gyro - d, gyro_dot, rho, 0.05, has_q)[0]) / 2e-6
     var = math.radians(0.05) ** 2
-    white, _ = ekf.rate_noise_cov(x, H, gyro, rho, has_q, var, math.inf)
+    white, _ = ekf.rate_noise_cov(x, H, rho, has_q, var, math.inf)
     expected = var * J @ J.T
     np.testing.assert_allclose(white, expected, atol=(0.03 if wheelbase else 1e-6) * np.abs(expected).max())
 
