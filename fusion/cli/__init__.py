@@ -14,9 +14,11 @@ def _interrupted_while_loading() -> None:
     SystemExit: with it the process now and then ended by its own SIGINT after the line (exit
     -2, as Python does when it takes a KeyboardInterrupt for unhandled at the top: 3 of 30
     interrupts at ``vision.frames``'s import, measured; 0 of 80 this way), which
-    `test_ctrl_c_while_the_command_loads_is_one_line` caught in CI runs. Where in the
-    half-loaded modules (numba, numpy) the interpreter came to take it for unhandled was not
-    found. Nothing is written yet to clean up."""
+    `test_ctrl_c_while_the_command_loads_is_one_line` caught in CI runs. Why (found later, the
+    same death after an interrupt while the filter loads): CPython 3.11 marks a KeyboardInterrupt
+    as unhandled when it ends code that a library ran through ``PyRun_*``, caught or not, and
+    ``python -m`` then exits by SIGINT (``fusion/__main__.py``). Nothing is written yet to clean
+    up."""
     import os
 
     print("error: interrupted", file=sys.stderr)
