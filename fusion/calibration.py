@@ -40,9 +40,9 @@ from imu.config import ImuMount
 from imu.errors import ImuConfigError
 
 from .config import Table, read_toml
-from .noise import NoiseModel, S
 from .errors import ConfigError
 from .files import write_bytes_atomically
+from .noise import NoiseModel, S
 
 __all__ = ["CALIBRATION_KEYS", "calibration_table", "calibration_from_state", "pitch_gyro_prior_deg_s",
            "write_calibration", "read_calibration", "apply_calibration"]

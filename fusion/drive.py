@@ -18,8 +18,8 @@ from imu.log_source import log_suffix
 from .config import VideoTiming
 from .errors import InputError
 
-__all__ = ["DriveFiles", "SAMPLE_DRIVE", "SPEED_MAX_AGE_S", "SPEED_SPAN_WARN_S", "find_drive_files", "frame_speeds", "last_speed",
-           "read_frame_times", "read_truth"]
+__all__ = ["DriveFiles", "SAMPLE_DRIVE", "SPEED_MAX_AGE_S", "SPEED_SPAN_WARN_S", "find_drive_files", "frame_speeds",
+           "last_speed", "read_frame_times", "read_truth"]
 
 #: The bundled sample drive (a simulated 12 s banked right-hand curve, 640x360 at 30 fps),
 #: rendered from ``configs/scenarios/sample_banked_curve.toml``.

@@ -106,10 +106,9 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
 
     from imu import read_log
 
-    from ..drive import check_overlap, frames_outside_warning
+    from ..drive import SPEED_SPAN_WARN_S, check_overlap, frame_speeds, frames_outside_warning
     from ..errors import ConfigError, InputError
     from ..options import fusion_options_from_table
-    from ..drive import SPEED_SPAN_WARN_S, frame_speeds
 
     for path in (args.can, args.dbc):
         if path is not None and not path.is_file():
