@@ -12,7 +12,7 @@ except KeyboardInterrupt:   # before fusion.cli could say it (its own imports sa
 status = main()
 if status in (130, 143):
     # An interrupt, said in one line and cleaned up: exit with its status at once. Through
-    # sys.exit, `python -m fusion` now and then died by its own SIGINT instead (exit -2; 1 in 6
+    # sys.exit, `python -m fusion` now and then died by its own SIGINT instead (exit -2; 4 of 54
     # interrupts while the filter loads during the vision): CPython 3.11 marks a KeyboardInterrupt
     # as unhandled when it ends any code run by PyRun_* (run_eval_code_obj), also one nested in
     # a library's import, and Py_RunMain, which `-m` returns through, then kills the process
