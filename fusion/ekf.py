@@ -277,10 +277,9 @@ def road_ahead_as_seen(bank_rad, curvature_1_m, distance_m, grade_rad=0.0):
     out, the steady-road roll error RMS fell from 0.010 / 0.020 / 0.013 / 0.021 to 0.003 /
     0.006 / 0.004 / 0.012 deg on the four banked curves of the three drives.
     """
-    if isinstance(bank_rad, float) and isinstance(curvature_1_m, float) and isinstance(distance_m, float) \
-            and isinstance(grade_rad, float):
-        return _road_turn(bank_rad, curvature_1_m, distance_m, grade_rad)   # (np.ndim costs 2 us each)
-    if np.ndim(bank_rad) or np.ndim(curvature_1_m) or np.ndim(distance_m) or np.ndim(grade_rad):
+    floats = (isinstance(bank_rad, float) and isinstance(curvature_1_m, float) and isinstance(distance_m, float)
+              and isinstance(grade_rad, float))      # (np.ndim costs 2 us each, once a frame)
+    if not floats and (np.ndim(bank_rad) or np.ndim(curvature_1_m) or np.ndim(distance_m) or np.ndim(grade_rad)):
         return _road_turn_v(bank_rad, curvature_1_m, distance_m, grade_rad)
     return _road_turn(float(bank_rad), float(curvature_1_m), float(distance_m), float(grade_rad))
 

@@ -498,19 +498,18 @@ class FusionStream:
         bisect.insort_right(self._twist_map, (due, rate, m.t_s))
         # what a replay can still reach (history_s back) needs the road from there on
         cut = m.t_s - 2.0 * self.options.history_s - _TWIST_SPAN_S
-        old = bisect.bisect_left(self._twist_map, (cut,))
-        dropped = self._twist_map[:old]
-        if old:
-            del self._twist_map[:old]
-        # the medians of the patches this entry joined, or that lost entries, are taken anew (the
-        # memo's keys are entries' due times)
+        # the medians of the patches this entry joins, or that lose entries to the cut below, are
+        # taken anew (the memo's keys are entries' due times)
         memo, entries = self._patch_memo, self._twist_map
         if memo:
-            lost = entries[:bisect.bisect_left(entries, (cut + 2.0 * _PATCH_S,))]
+            lose = entries[:bisect.bisect_left(entries, (cut + 2.0 * _PATCH_S,))]
             near = entries[bisect.bisect_left(entries, (due - 2.0 * _PATCH_S,)):
                            bisect.bisect_right(entries, (due + 2.0 * _PATCH_S, math.inf, math.inf))]
-            for e in (*dropped, *lost, *near):
+            for e in (*lose, *near):
                 memo.pop(e[0], None)
+        old = bisect.bisect_left(entries, (cut,))
+        if old:
+            del entries[:old]
 
     def _bank_rate_target(self, t: float) -> float:
         """The bank rate the filter's Gauss-Markov rate reverts to at ``t``: the road's, from the
