@@ -52,10 +52,12 @@ class SynthDrive:
 def synth_drive(scenario: str = "banked_curves_60s.toml", duration_s: float | None = None,
                 vision_sigma_deg: float = 0.3, fps: float = 30.0, seed: int = 0,
                 accel_bias_m_s2: tuple = (0.03, 0.01, -0.03), pitch_rate: bool = True,
-                curvature_error: float = 0.0, wheelbase_m: float = 0.0) -> SynthDrive:
+                curvature_error: float = 0.0, wheelbase_m: float = 0.0, vehicle: str | None = None) -> SynthDrive:
     sc = load_scenario(SCENARIOS / scenario)
     if wheelbase_m:
         sc = dataclasses.replace(sc, motion=dataclasses.replace(sc.motion, wheelbase_m=wheelbase_m))
+    if vehicle is not None:
+        sc = dataclasses.replace(sc, motion=dataclasses.replace(sc.motion, vehicle=vehicle))
     assert sc.imu.accel_noise_m_s2 == SIM_ACCEL_NOISE_M_S2, "the tests tell the filter SIM_ACCEL_NOISE_M_S2"
     imu_spec = dataclasses.replace(sc.imu, accel_bias_m_s2=accel_bias_m_s2, pitch_rate=pitch_rate)
     sc = dataclasses.replace(sc, imu=imu_spec, duration_s=duration_s or sc.duration_s)

@@ -1119,3 +1119,36 @@ def test_a_simulated_wheelbase_reaches_the_drive_config():
     sc = dataclasses.replace(sc, motion=dataclasses.replace(sc.motion, wheelbase_m=1.45))
     table = tomllib.loads(_config_toml(sc, "imu.dbc", {}, 30.0, 0.0))["fusion"]
     assert fusion_options_from_table(table)[0].wheelbase_m == 1.45
+
+
+def test_a_car_whose_body_follows_the_road():
+    """Issue 5's car mode: the 60 s drive's road (banks from -6 to +7 deg) driven by a car, whose
+    body follows the road plane and rolls on its springs by 0.5 deg per m/s^2 of lateral force
+    (within 1.1 deg of the road here), so the IMU's world roll is nearly the bank itself and the
+    vision's roll nearly 0: the other end from a motorcycle, whose lean the road does not set.
+    The filter is the same one, told nothing of the vehicle. Vision from the truth with 0.3 deg
+    of white noise, as the motorcycle's tests above. Measured: bank 0.179 deg RMS (the plain
+    IMU-minus-vision difference 0.363), roll / pitch / yaw 0.172 / 0.043 / 0.080 (the vision
+    0.30 each), yaw-rate bias within 0.002 deg/s of the truth, NEES in band on 92.6 % of the
+    samples. Bars: the motorcycle's tests' (bank 0.3, roll 0.2, pitch and yaw 0.1, each better
+    than the vision alone and the bank than the plain difference; the gyro biases within 0.03
+    deg/s, 0.07 deg of roll at 22 m/s) and the issue's consistency bar, 90 %."""
+    d = synth_drive("banked_curves_60s.toml", vision_sigma_deg=VISION_SIGMA_DEG, vehicle="car")
+    late = d.truth["t_s"] >= 2.0
+    # a car's drive: its roll relative to the road small while the road banks
+    assert d.truth.loc[late, "roll_deg"].abs().max() < 1.2
+    assert d.truth["bank_deg"].max() > 6.5 and d.truth["bank_deg"].min() < -5.5
+    run = fuse(d.imu, d.vision, lever_arm_m=d.lever_arm_m, options=OPTIONS)
+    f = run.fused
+    for col, bar in (("roll_deg", 0.2), ("pitch_deg", 0.1), ("yaw_deg", 0.1)):
+        fused = rmse_deg(f, d.truth, col)
+        assert fused < bar and fused < rmse_deg(d.vision, d.truth, col), (col, fused)
+    imu_only = fuse(d.imu, None, lever_arm_m=d.lever_arm_m, options=OPTIONS).fused
+    plain = plain_bank(imu_only, d.vision).rename(columns={"bank_plain_deg": "bank_deg"})
+    bank = rmse_deg(f, d.truth, "bank_deg")
+    assert bank < 0.3 and bank < rmse_deg(plain, d.truth, "bank_deg"), (bank, rmse_deg(plain, d.truth, "bank_deg"))
+    est = f[["gyro_bias_x_deg_s", "gyro_bias_y_deg_s", "gyro_bias_z_deg_s"]].to_numpy()[-1]
+    true = np.degrees(d.imu_truth[["gyro_bias_x_rad_s", "gyro_bias_y_rad_s", "gyro_bias_z_rad_s"]].to_numpy()[-1])
+    np.testing.assert_allclose(est, true, atol=0.03)
+    c = consistency(f, d.truth, run.cov, t_min_s=2.0)
+    assert c.fraction_inside >= 0.9, c
