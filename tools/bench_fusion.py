@@ -518,6 +518,17 @@ def live_cost_us(drive: Path) -> float:
 WHEELBASE_ANGLES = ("roll", "pitch", "yaw", "bank", "grade", "roll_world", "pitch_world")
 
 
+def runs_forward_and_smoothed(drive: Path) -> tuple[Path, dict, dict]:
+    """A drive's ``vifusion run`` (kept in ``<drive>-run``) and ``vifusion run --smooth``:
+    the forward run's folder and both summaries."""
+    out = drive.parent / (drive.name + "-run")
+    _, summ = run_cli(drive, out)
+    smooth_dir = drive.parent / (drive.name + "-run-smooth")
+    _, summ_s = run_cli(drive, smooth_dir, "--smooth")
+    shutil.rmtree(smooth_dir, ignore_errors=True)
+    return out, summ, summ_s
+
+
 def wheelbase(drive: Path) -> list[tuple[str, dict]]:
     """The wheelbase drive's ``vifusion run`` (its config gives ``[fusion] wheelbase_m``),
     forward and smoothed, the same forward filter told no wheelbase, and the vision alone:
@@ -528,11 +539,7 @@ def wheelbase(drive: Path) -> list[tuple[str, dict]]:
     from fusion.report import CONVERGENCE_S
     from fusion.pipeline import fuse
 
-    out = drive.parent / (drive.name + "-run")
-    _, summ = run_cli(drive, out)
-    smooth_dir = drive.parent / (drive.name + "-run-smooth")
-    _, summ_s = run_cli(drive, smooth_dir, "--smooth")
-    shutil.rmtree(smooth_dir, ignore_errors=True)
+    out, summ, summ_s = runs_forward_and_smoothed(drive)
     cfg, opts, imu, vision, truth = filter_inputs(drive, out)
     untold = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=dataclasses.replace(opts, wheelbase_m=0.0)).fused
     acc = summ["rmse_deg"]
@@ -547,11 +554,7 @@ def wheelbase(drive: Path) -> list[tuple[str, dict]]:
 def car(drive: Path) -> dict:
     """The car drive's ``vifusion run``, forward and smoothed: RMSE per source, NEES share in
     band, the lane loss (as :func:`lane_loss`) and the forward filter without a pitch gyro."""
-    out = drive.parent / (drive.name + "-run")
-    _, summ = run_cli(drive, out)
-    smooth_dir = drive.parent / (drive.name + "-run-smooth")
-    _, summ_s = run_cli(drive, smooth_dir, "--smooth")
-    shutil.rmtree(smooth_dir, ignore_errors=True)
+    out, summ, summ_s = runs_forward_and_smoothed(drive)
     acc = summ["rmse_deg"]
     no_q, no_q_loss = without_pitch_gyro(drive, out, t_loss_s=8.0)
     return {"rows": [("fused (forward)", acc["fused"], summ["consistency"]["fraction_inside"]),
