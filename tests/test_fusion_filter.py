@@ -57,7 +57,7 @@ def test_small_matrix_kernels_match_numpy(n, seed):
     A = rng.normal(size=(n, n))
     M = A @ A.T + 1e-3 * np.eye(n) * np.trace(A @ A.T)
     np.testing.assert_allclose(_inv_small(M) @ M, np.eye(n), atol=1e-10)
-    B, C, D = rng.normal(size=(n, 4)), rng.normal(size=(3, 4)), rng.normal(size=(n, 3))
+    B, C = rng.normal(size=(n, 4)), rng.normal(size=(3, 4))
     B[B < -0.5] = 0.0   # the kernels skip zeros: sparse factors too
     np.testing.assert_allclose(ekf._mm(B, C.T.copy()), B @ C.T, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(ekf._mmt(B, C), B @ C.T, rtol=1e-12, atol=1e-12)
@@ -786,7 +786,6 @@ def test_road_twist_measured_ahead_is_the_bank_rate_under_the_wheels(drive):
     tr = drive.truth
     tt = tr["t_s"].to_numpy()
     t = drive.vision["t_s"].to_numpy()
-    speed = np.interp(t, tt, tr["speed_m_s"])
     station = np.interp(t, tt, tr["station_m"])
     bank_of_s = lambda s: np.interp(s, tr["station_m"], tr["bank_deg"])   # noqa: E731
     twist = (bank_of_s(station + L + 1.0) - bank_of_s(station + L - 1.0)) / 2.0      # deg/m
