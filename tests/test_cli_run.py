@@ -1280,7 +1280,6 @@ def test_an_interrupt_that_surfaces_as_another_error_is_an_interrupt(monkeypatch
     arrived" in two such CI runs, 2026-11-27)."""
     import signal
     import threading
-    import time
 
     def _sigint_to_the_main_thread():
         signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)

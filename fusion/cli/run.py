@@ -92,8 +92,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from imu import CHANNELS, VALUE_COLUMNS, read_log
     from imu.samples import never_seen
     from vision.options import options_from_table
