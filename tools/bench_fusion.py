@@ -560,8 +560,9 @@ def car(drive: Path) -> dict:
     """A car drive's ``vifusion run``, forward and smoothed: RMSE per source, NEES share in
     band, the lane loss (as :func:`lane_loss`), the forward filter without a pitch gyro, and
     the forward filter told the accelerometer's true bias (``imu_truth.csv``, to
-    :data:`TOLD_ACCEL_BIAS_SIGMA`): what the lateral bias, which one curve cannot tell from bank,
-    leaves of the bank error."""
+    :data:`TOLD_ACCEL_BIAS_SIGMA`): the bank error with the lateral bias, which one curve cannot
+    tell from bank, known (on the right-hand road larger than without: there the estimated
+    lateral bias had made up for the yaw-rate bias's error)."""
     import dataclasses
 
     from fusion.metrics import rmse_table
