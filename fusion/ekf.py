@@ -649,6 +649,15 @@ class AttitudeEKF(ExtendedKalmanFilter):
         self._R_accel_scaled = (1.0, self._R_accel)   # (r_scale, R_accel * r_scale) last used
         self._sigma_params = noise._vision_sigma_params()
         self.curvature_rejected = 0
+        # the kernels' other noise arguments, worked out once as the gates are (per call they
+        # were a tenth of the Python time around the propagation's kernel)
+        self._gyro_var = n.gyro_noise_rad_s**2
+        self._yaw_walk_var = n.yaw_rel_walk_no_lanes_rad_sqrt_s**2
+        self._speed_var = n.speed_meas_m_s**2
+        taus = (n.grade_rate_tau_s, n.no_pitch_rate_tau_s)
+        self._taus_mapped = (n.bank_rate_tau_mapped_s, *taus)
+        self._taus_no_vision = (min(n.bank_rate_tau_s, n.bank_rate_tau_no_vision_s), *taus)
+        self._taus = (n.bank_rate_tau_s, *taus)
 
     # ---- process ----
 
@@ -675,12 +684,11 @@ class AttitudeEKF(ExtendedKalmanFilter):
         :attr:`ImuStep.bank_rate_target_rad_s`), ``bank_rate_tau_mapped_s`` for the bank rate;
         else while the vision is away, ``bank_rate_tau_no_vision_s`` (the bank holds); the grade
         rate keeps its own, the accelerometer measures it (module docstring)."""
-        n = self.noise
         if not math.isnan(u.bank_rate_target_rad_s):
-            return n.bank_rate_tau_mapped_s, n.grade_rate_tau_s, n.no_pitch_rate_tau_s
+            return self._taus_mapped
         if u.vision_gap:
-            return min(n.bank_rate_tau_s, n.bank_rate_tau_no_vision_s), n.grade_rate_tau_s, n.no_pitch_rate_tau_s
-        return n.bank_rate_tau_s, n.grade_rate_tau_s, n.no_pitch_rate_tau_s
+            return self._taus_no_vision
+        return self._taus
 
     def road_turn_rate(self, u: ImuStep) -> float:
         """Heading rate of the road at the vehicle, rad/s: ``kappa v cos(yaw_rel) / (1 - kappa d)``,
@@ -689,10 +697,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     def transition(self, u: ImuStep):
         """Jacobian ``F = I + A dt`` and process noise ``Q`` of one interval (:func:`_transition`)."""
-        n = self.noise
         return _transition(self.x, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
-                           self._rate_taus(u), self._q_per_s(u), n.gyro_noise_rad_s**2,
-                           n.yaw_rel_walk_no_lanes_rad_sqrt_s**2)
+                           self._rate_taus(u), self._q_per_s(u), self._gyro_var, self._yaw_walk_var)
 
     def predict(self, u: ImuStep = None) -> None:
         """filterpy's ``predict`` (``predict_x``, then ``P = F P F^T + Q``, then the priors),
@@ -704,13 +710,12 @@ class AttitudeEKF(ExtendedKalmanFilter):
     def propagate(self, u: ImuStep) -> float:
         """filterpy predict with this interval's F and Q (:meth:`transition`, then
         :meth:`predict`), in one compiled call: it runs once or twice per IMU sample. Returns
-        the road's heading rate after the step (:meth:`road_turn_rate`)."""
-        n = self.noise
-        self.x, self.P, self.F, self.Q, road_rate = _propagate(
+        the road's heading rate after the step (:meth:`road_turn_rate`). The prior, ``F`` and
+        ``Q`` are written into the filter's own arrays, as :meth:`propagate_and_update` does."""
+        self.x, self.P, road_rate = _propagate_into(
             self.x, self.P, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
-            self._rate_taus(u), self._q_per_s(u), n.gyro_noise_rad_s**2,
-            n.yaw_rel_walk_no_lanes_rad_sqrt_s**2, _target(u))
-        self.x_prior, self.P_prior = self.x.copy(), self.P.copy()
+            self._rate_taus(u), self._q_per_s(u), self._gyro_var, self._yaw_walk_var, _target(u), self.x_prior,
+            self.P_prior, self.F, self.Q)
         return road_rate
 
     # ---- measurements ----
@@ -856,7 +861,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         ok, d2, x, P, y, K, Sm, SI = _gravity_update(
             self.x, self.P, z, np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float),
             self._rho, float(road_turn_rate_rad_s), self.has_pitch_rate, self._accel_r(r_scale),
-            self._gate[3], self.noise.gyro_noise_rad_s**2, float(gyro_dot_dt_s))
+            self._gate[3], self._gyro_var, float(gyro_dot_dt_s))
         return self._accept(ok, d2, x, P, y, K, Sm, SI, z)
 
     def _accel_r(self, r_scale: float) -> np.ndarray:
@@ -867,7 +872,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         return self._R_accel_scaled[1]
 
     def update_speed(self, speed_m_s: float) -> bool:
-        return self.gated_update_state(S.SPEED, speed_m_s, self.noise.speed_meas_m_s**2)
+        return self.gated_update_state(S.SPEED, speed_m_s, self._speed_var)
 
     def propagate_and_update(self, u: ImuStep, speed_m_s: float, accel_m_s2, gyro_rad_s, gyro_dot_rad_s2,
                              gravity: bool, r_scale: float = 1.0,
@@ -880,11 +885,10 @@ class AttitudeEKF(ExtendedKalmanFilter):
         not attempted counts as used. The prior and the step's ``F`` and ``Q`` are written into
         the filter's own ``x_prior``, ``P_prior``, ``F``, ``Q`` arrays (copy them to keep them):
         arrays returned from the compiled call cost about 1 us each to hand back."""
-        n = self.noise
         road_rate, ok_v, ok_g, d2, self.x, self.P = _imu_step(
             self.x, self.P, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
-            self._rate_taus(u), self._q_per_s(u), n.gyro_noise_rad_s**2, n.yaw_rel_walk_no_lanes_rad_sqrt_s**2,
-            _target(u), float(speed_m_s), n.speed_meas_m_s**2, self._gate[1], np.asarray(accel_m_s2, dtype=float),
+            self._rate_taus(u), self._q_per_s(u), self._gyro_var, self._yaw_walk_var,
+            _target(u), float(speed_m_s), self._speed_var, self._gate[1], np.asarray(accel_m_s2, dtype=float),
             np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float), self._rho,
             gravity, self._accel_r(r_scale), self._gate[3], float(gyro_dot_dt_s), self.x_prior, self.P_prior, self.F,
             self.Q)
@@ -1271,6 +1275,21 @@ def _propagate(x, P, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_var, y
     F, Q = _transition(x, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_var, yaw_walk_var)
     x1 = _predict_x(x, gyro, dt, follow, offset, has_q, taus, rate_target)
     return x1, _propagate_cov(P, F, Q), F, Q, _road_turn_rate(x1, gyro, follow, offset, has_q)
+
+
+@nb.njit(cache=True)
+def _propagate_into(x, P, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_var, yaw_walk_var, rate_target,
+                    x_prior, P_prior, F_out, Q_out):
+    """:func:`_propagate`, the prior, ``F`` and ``Q`` written into the last four arrays (two
+    arrays returned instead of four, and no copies of the prior in Python): ``(x, P,
+    road_rate)``."""
+    x1, P1, F, Q, road_rate = _propagate(x, P, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_var, yaw_walk_var,
+                                         rate_target)
+    x_prior[:] = x1
+    P_prior[:, :] = P1
+    F_out[:, :] = F
+    Q_out[:, :] = Q
+    return x1, P1, road_rate
 
 
 @nb.njit(cache=True)
