@@ -237,11 +237,12 @@ class FusionStream:
             self._drop_pending(lambda p: isinstance(p, VisionMeasurement) and self.too_far_ahead(p.t_s, t),
                                "vision_future")
         # Vision results whose time this sample passes are applied inside the interval
-        # (the queue is kept in time order: the first k).
-        k = bisect.bisect_right(self._pending, t, key=_time_of)
-        ready = self._pending[:k]
-        if k:
-            del self._pending[:k]
+        # (the queue is kept in time order: the first k; most samples pass none)
+        pending, ready = self._pending, ()
+        if pending and pending[0].t_s <= t:
+            k = bisect.bisect_right(pending, t, key=_time_of)
+            ready = pending[:k]
+            del pending[:k]
         self._process_sample(sample, visions=ready)
         self._hist.append(sample)
         while self._hist and sample.t - self._hist[0].t > self.options.history_s:
@@ -455,9 +456,10 @@ class FusionStream:
         """Count sample ``s``'s refused updates once: a replay (late vision) replaces what its
         first pass counted instead of adding to it."""
         new = (int(speed_refused), int(gravity_refused))
-        self.counts["speed_rejected"] += new[0] - s.refused[0]
-        self.counts["gravity_rejected"] += new[1] - s.refused[1]
-        s.refused = new
+        if new != s.refused:     # (most samples: nothing refused, then or now)
+            self.counts["speed_rejected"] += new[0] - s.refused[0]
+            self.counts["gravity_rejected"] += new[1] - s.refused[1]
+            s.refused = new
 
     def _propagate(self, t0: float, t1: float, gyro, imu_index: int, sample: _ImuSample | None = None) -> None:
         """Propagate from ``t0`` to ``t1`` with the mean rate ``gyro``; with ``sample`` (the

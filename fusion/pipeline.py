@@ -204,9 +204,10 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     Pm = np.empty((len(t), stream.ekf.dim_x, stream.ekf.dim_x))
     j = 0
     t_list, speed_list, fresh_list = t.tolist(), speed.tolist(), fresh.tolist()   # Python scalars: cheaper per sample
+    vt_list = vt.tolist()
     for k in tqdm(range(len(t)), desc="fuse", unit="sample", disable=not progress, mininterval=0.5):
-        while j < len(vt) and vt[j] <= t_list[k]:
-            stream.add_vision(vt[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j], vrt[j], vresp[j], vsag[j], vyk[j])
+        while j < len(vt_list) and vt_list[j] <= t_list[k]:
+            stream.add_vision(vt_list[j], vang[j], vsig[j], bool(vvalid[j]), vk[j], vd[j], vks[j], vla[j], vtw[j], vrt[j], vresp[j], vsag[j], vyk[j])
             j += 1
         stream.add_imu(t_list[k], gyro[k], accel[k], speed_list[k], fresh_list[k])
         X[k], Pm[k] = stream.ekf.x, stream.ekf.P
