@@ -300,7 +300,7 @@ class FusionStream:
         item = VisionMeasurement(t_s, angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
                                  float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw,
                                  float(road_twist_rad_m[0]), float(road_twist_rad_m[1]),
-                                 tuple(float(g) for g in twist_response), tuple(float(g) for g in vertical_curvature),
+                                 tuple(map(float, twist_response)), tuple(map(float, vertical_curvature)),
                                  float(yaw_per_curvature_m))
         if not self._hist or item.t_s > self._hist[-1].t:
             bisect.insort_right(self._pending, item, key=_time_of)   # the IMU has not reached it yet
