@@ -23,7 +23,7 @@ import bisect
 import math
 from collections import deque
 from dataclasses import dataclass, fields, replace
-from operator import attrgetter
+from operator import attrgetter, itemgetter
 
 import numpy as np
 
@@ -47,6 +47,7 @@ _TWIST_SPAN_S = 1.0
 _PATCH_S = 0.05
 
 _time_of = attrgetter("t_s")
+_captured = itemgetter(2)   # of a twist map entry (due, rate, capture time)
 #: IMU intervals whose median is taken as the sample period (the accelerometer noise's rate).
 _PERIOD_SAMPLES = 20
 #: The largest angle relative to the road a vision result may give, rad: a vehicle that follows
@@ -172,8 +173,6 @@ class FusionStream:
         #: rests on are unchanged (None: search again; :meth:`_map_twist` and :meth:`restart`
         #: drop it)
         self._segment_memo: tuple | None = None
-        #: the newest capture time in the map since the start or a restart (s)
-        self._map_newest = -math.inf
         #: Frames captured at or before this time are left out of the map: a re-acquisition of
         #: the road states (the bank, the curvature) at it, their rates converted at the state
         #: that had diverged (``_map_twist``; a review)
@@ -350,7 +349,7 @@ class FusionStream:
         self._decisions.clear()
         self._twist_map.clear()
         self._patch_memo.clear()
-        self._segment_memo, self._map_newest = None, -math.inf
+        self._segment_memo = None
         # results from before the gap (after a clock that went back: all) do not carry across
         self._drop_pending(lambda p: p.t_s <= newest or isinstance(p, RollAhead))
         if clock_reset:
@@ -506,7 +505,6 @@ class FusionStream:
         rate = x[S.SPEED] * (m.road_twist_rad_m - turned) / math.cos(phi)
         due = m.t_s + ahead_s
         bisect.insort_right(self._twist_map, (due, rate, m.t_s))
-        self._map_newest = max(self._map_newest, m.t_s)
         # what a replay can still reach (history_s back) needs the road from there on
         cut = m.t_s - 2.0 * self.options.history_s - _TWIST_SPAN_S
         # the medians of the patches this entry joins, or that lose entries to the cut below, are
@@ -575,8 +573,9 @@ class FusionStream:
                 segment = (None, math.nan, t1, r1)
             else:
                 segment = (entries[i][0], self._patch_rate(entries[i][0], t), t1, r1)
-        if self._map_newest < t:
-            self._segment_memo = (max(after, self._map_newest), before, since, segment)
+        newest = max(map(_captured, entries), default=-math.inf)
+        if newest < t:
+            self._segment_memo = (max(after, newest), before, since, segment)
         return segment
 
     def _patch_rate(self, due: float, t: float) -> float:

@@ -886,6 +886,35 @@ def test_the_twist_map_interpolates_the_road_measured_by_then():
     assert target(9.95) == pytest.approx(1.0)
 
 
+
+def test_the_twist_map_segment_kept_is_what_a_search_finds():
+    """``_bank_rate_target`` keeps the segment of the map it found (``_segment_memo``) while
+    the roads it rests on stand, frames mapped ahead of it too (``_map_twist``): along a drive
+    of frames at 30 fps (a road every patch, twists at random, re-acquisitions now and then,
+    replays' earlier times), the same rate to the bit as a search at every time."""
+    rng = np.random.default_rng(3)
+    kept, searched = (FusionStream(options=OPTIONS) for _ in range(2))
+    for s in (kept, searched):
+        s.ekf.x[S.SPEED] = 20.0
+    t_frame, frames = 0.0, 0
+    for step in range(1500):
+        t = 0.01 * step
+        if t >= t_frame:
+            m = ekf.VisionMeasurement(t_frame, np.zeros(3), np.full(3, 0.01), roll_lookahead_m=12.0,
+                                      road_twist_rad_m=float(rng.normal(0.0, 2e-3)))
+            ahead_s = 0.6 if rng.random() < 0.8 else float(rng.uniform(0.02, 0.9))
+            for s in (kept, searched):
+                s._map_twist(m, ahead_s)
+            t_frame, frames = t_frame + 1.0 / 30.0, frames + 1
+            if rng.random() < 0.02:
+                for s in (kept, searched):
+                    s._map_from = t_frame - 0.5      # a re-acquisition
+        for tq in (t, t - float(rng.uniform(0.0, 0.5))) if rng.random() < 0.1 else (t,):
+            searched._segment_memo = None
+            a, b = kept._bank_rate_target(tq), searched._bank_rate_target(tq)
+            assert a == b or (math.isnan(a) and math.isnan(b)), (tq, a, b)
+    assert frames > 400 and kept._twist_map == searched._twist_map
+
 def test_twist_changing_across_the_view_is_modelled(drive, forward):
     """Where a runoff comes into view the twist differs between the vehicle and the lane
     cross-sections, and the lane fit's yaw and curvature go wrong by their response to both
