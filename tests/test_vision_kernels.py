@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from vision.lanemodel import _sag_weight, sag_weight
 from vision.lanes import _binarize, _left_edge_distance, _threshold_sample, marker_response
+from vision.video import _LUMA_TO_GREY, _video_range_to_grey
 
 
 def _binarize_reference(resp, thr, lo, hi, margin):
@@ -125,3 +126,14 @@ def test_lane_fit_linear_response_is_a_refit(seed):
     _, p1 = fit(y + dy)
     lin = base.linear_response(dy)
     np.testing.assert_allclose(lin, p1 - p0, atol=0.02 * np.max(np.abs(p1 - p0)) + 1e-9)
+
+
+def test_video_range_to_grey_is_the_table_for_every_value_and_width():
+    # every value at every column position of rows of widths around the vector lengths (the
+    # compiled loop's vector body and its scalar remainder), from a strided view as PyAV's planes
+    for w in (1, 3, 7, 15, 16, 17, 31, 33, 63, 65, 255, 256, 257, 1280):
+        plane = ((np.arange(256)[:, None] + np.arange(w + 11)[None, :]) % 256).astype(np.uint8)
+        luma = plane[:, :w]
+        out = _video_range_to_grey(luma)
+        assert out.flags.c_contiguous and out.dtype == np.uint8
+        assert np.array_equal(out, _LUMA_TO_GREY[luma])
