@@ -886,7 +886,6 @@ def test_the_twist_map_interpolates_the_road_measured_by_then():
     assert target(9.95) == pytest.approx(1.0)
 
 
-
 def test_the_twist_map_segment_kept_is_what_a_search_finds():
     """``_bank_rate_target`` keeps the segment of the map it found (``_segment_memo``) while
     the roads it rests on stand, frames mapped ahead of it too (``_map_twist``): along a drive
@@ -914,6 +913,7 @@ def test_the_twist_map_segment_kept_is_what_a_search_finds():
             a, b = kept._bank_rate_target(tq), searched._bank_rate_target(tq)
             assert a == b or (math.isnan(a) and math.isnan(b)), (tq, a, b)
     assert frames > 400 and kept._twist_map == searched._twist_map
+
 
 def test_twist_changing_across_the_view_is_modelled(drive, forward):
     """Where a runoff comes into view the twist differs between the vehicle and the lane

@@ -460,18 +460,15 @@ def time_offsets(drive: Path, run_dir: Path) -> list:
 
 
 def filter_rate(drive: Path) -> float:
-    """IMU samples per second through the forward filter alone (median of 3)."""
-    from fusion.config import load_config
+    """IMU samples per second through the forward filter alone (median of 3), with the drive's
+    ``[fusion]`` options as its accuracy rows (until 2026-11-29 the defaults)."""
     from fusion.pipeline import fuse
-    from imu import read_log
 
-    cfg = load_config(drive / "config.toml")
-    imu, _ = read_log(next(drive.glob("can.*")), cfg.can, cfg.imu)
-    vision = read_vision(drive.parent / (drive.name + "-run"))
+    cfg, opts, imu, vision, _ = filter_inputs(drive, drive.parent / (drive.name + "-run"))
     rates = []
     for _ in range(3):
         t0 = time.perf_counter()
-        fuse(imu, vision, lever_arm_m=cfg.imu.position_m)
+        fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts)
         rates.append(len(imu) / (time.perf_counter() - t0))
     return statistics.median(rates)
 
