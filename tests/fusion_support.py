@@ -87,7 +87,10 @@ def synth_drive(scenario: str = "banked_curves_60s.toml", duration_s: float | No
         "roll_deg": np.degrees(tr["roll"]) + noise[:, 0], "pitch_deg": np.degrees(tr["pitch"]) + noise[:, 1],
         "yaw_deg": np.degrees(tr["yaw"]) + noise[:, 2], "valid": True,
         "roll_sigma_deg": vision_sigma_deg, "pitch_sigma_deg": vision_sigma_deg, "yaw_sigma_deg": vision_sigma_deg,
-        "curvature_1_m": tr["curvature_1_m"] * (1.0 + curvature_error), "lateral_offset_m": tr["lateral_offset_m"],
+        # the lane fit's curvature is the road plane's, kappa cos(bank) (fusion.ekf._lane_plane_curvature;
+        # the vertical curve's kv sin(bank) left out)
+        "curvature_1_m": tr["curvature_1_m"] * np.cos(tr["bank"]) * (1.0 + curvature_error),
+        "lateral_offset_m": tr["lateral_offset_m"],
         # what a good lane fit would claim: 2e-4 1/m plus 5 % (a biased fit lies about it)
         "curvature_sigma_1_m": 2e-4 + 0.05 * np.abs(tr["curvature_1_m"]),
     })

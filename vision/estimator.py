@@ -115,7 +115,10 @@ class VisionEstimate:
     valid : bool
         False when the frame gave no trustworthy estimate; ``reason`` says why.
     curvature_1_m : float
-        Curvature of the lane at the vehicle, 1/m, positive turning left (mean of the lines used).
+        Curvature of the lane at the vehicle, 1/m, positive turning left (mean of the lines used),
+        in the road's tangent plane (the lines' geodesic curvature): on a curve banked by ``b``
+        ``kappa cos(b)`` of the horizontal curvature ``kappa`` (0.38 % less at 5 deg), which the
+        filter models (``fusion.ekf._lane_plane_curvature``).
     curvature_sigma_1_m : float
         Its 1-sigma, 1/m: the lane model's covariance (vertical curvature included) plus the
         model terms of :data:`CURVATURE_MODEL_SIGMA`.
