@@ -1396,7 +1396,8 @@ def _lane_plane_curvature(x, moving):
     truth's ``curvature_1_m``). With the lateral axis ``cos(bank) h + sin(bank) up`` and a line's
     curvature vector ``kappa h + kv up`` (``kv = -grade_rate / v``, the vertical curve, a sag
     positive; its normal part ``kv cos(bank) - kappa sin(bank)`` is the vision's
-    ``vertical_curvature``)::
+    ``vertical_curvature``, which the pitch's model takes to first order, ``kv - kappa
+    sin(bank)``)::
 
         kappa_plane = kappa cos(bank) + kv sin(bank)
 

@@ -523,8 +523,9 @@ class FusionStream:
         # its next road and the cut (roads due before it) left the patch of its last road whole:
         # the search never reaches them (kept at 1,471 of the 60 s drive's 1,571 frames)
         segment = self._segment_memo[3] if self._segment_memo is not None else None
+        # (with no last road, the cut must leave the next one's patch whole: a review's case)
         if not (segment is not None and due > segment[2] + _PATCH_S
-                and (segment[0] is None or cut <= segment[0] - _PATCH_S)):
+                and cut <= (segment[2] if segment[0] is None else segment[0]) - _PATCH_S):
             self._segment_memo = None
 
     def _bank_rate_target(self, t: float) -> float:
