@@ -226,17 +226,21 @@ def test_the_twisted_birds_eye_view_samples_the_surface():
     assert x == pytest.approx(grid.x_of_row(v), abs=1e-3) and y == pytest.approx(grid.y_of_col(u), abs=1e-3)
 
 
-def _lane_fit_on_the_exact_road(bank_deg: float, t_s: float = 9.0):
+def _lane_fit_on_the_exact_road(bank_deg: float, t_s: float = 9.0, grade_pct: float | None = None):
     """The lane model fitted to the simulator's exact marker edges on the 250 m left-hand curve of
     ``banked_curve_left_5deg`` (bank replaced by ``bank_deg``), as the estimator sees them with
     an exact surface: the edges' coordinates in the road's tangent plane at the vehicle (frame
-    ``o``), 2-28 m ahead (the HD drives' reach). Returns the reported curvature (the outer
-    lines' mean at the contact point), the truth's (horizontal) curvature and the road's bank."""
+    ``o``), 2-28 m ahead (the HD drives' reach). ``grade_pct``: the curve goes into a vertical
+    curve to that grade over 300 m from 230 m on. Returns the reported curvature (the outer
+    lines' mean at the contact point), the truth's (horizontal) curvature, the road's bank, its
+    grade rate (rad/s, the truth's road pitch's, numerically) and the speed."""
     import sys
     import tomllib
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    tools = str(Path(__file__).resolve().parents[1] / "tools")
+    if tools not in sys.path:
+        sys.path.insert(0, tools)
     from drivesim.drive import build_road
     from drivesim.scenario import parse_scenario
     from drivesim.trajectory import Trajectory
@@ -245,12 +249,20 @@ def _lane_fit_on_the_exact_road(bank_deg: float, t_s: float = 9.0):
 
     root = Path(__file__).resolve().parents[1]
     data = tomllib.loads((root / "configs" / "scenarios" / "banked_curve_left_5deg.toml").read_text())
-    for seg in data["road"]["segment"][1:]:
+    segs = data["road"]["segment"]
+    for seg in segs[1:]:
         seg["bank_deg"] = bank_deg
+    if grade_pct is not None:
+        segs[2]["length_m"] = 100.0
+        segs += [dict(length_m=300.0, curvature_1_m=0.004, bank_deg=bank_deg, grade_pct=grade_pct),
+                 dict(length_m=2000.0, curvature_1_m=0.004, bank_deg=bank_deg, grade_pct=grade_pct)]
     sc = parse_scenario(data, "banked_curve")
     road = build_road(sc)
     t = np.array([t_s])
-    pose, truth = Trajectory(road, sc.motion).pose(t), Trajectory(road, sc.motion).truth(t)
+    traj = Trajectory(road, sc.motion)
+    pose, truth = traj.pose(t), traj.truth(t)
+    h = 1e-3
+    pitch = traj.truth(np.array([t_s - h, t_s + h]))["road_pitch"]
     s0, d0 = float(pose["s"][0]), float(pose["d"][0])
     R_w_o, P0 = road.frame(np.array(s0), np.array(d0)), road.surface(np.array(s0), np.array(d0))
     xs, ys, counts, lines, sides = [], [], [], [], []
@@ -267,7 +279,8 @@ def _lane_fit_on_the_exact_road(bank_deg: float, t_s: float = 9.0):
     model = fit_lane_model_points(np.concatenate(xs), np.concatenate(ys), np.array(counts), np.array(lines),
                                   np.array(sides), 3, 99.0)
     kappa = float(np.mean([model.curvature_and_row(j, 0.0)[0] for j in (0, 2)]))
-    return kappa, float(truth["curvature_1_m"][0]), float(truth["bank"][0])
+    return (kappa, float(truth["curvature_1_m"][0]), float(truth["bank"][0]), float(pitch[1] - pitch[0]) / (2 * h),
+            float(truth["speed_m_s"][0]))
 
 
 def test_the_lane_fit_measures_the_curvature_in_the_road_plane():
@@ -285,8 +298,8 @@ def test_the_lane_fit_measures_the_curvature_in_the_road_plane():
     from fusion.ekf import _lane_plane_curvature
     from fusion.noise import DIM_X, S
 
-    flat, kappa, _ = _lane_fit_on_the_exact_road(0.0)
-    banked, kappa_b, bank = _lane_fit_on_the_exact_road(-5.0)
+    flat, kappa, *_ = _lane_fit_on_the_exact_road(0.0)
+    banked, kappa_b, bank, _, _ = _lane_fit_on_the_exact_road(-5.0)
     assert kappa_b == kappa == pytest.approx(0.004)
     assert bank == pytest.approx(math.radians(-5.0), abs=1e-9)
     x = np.zeros(DIM_X)
@@ -297,3 +310,25 @@ def test_the_lane_fit_measures_the_curvature_in_the_road_plane():
     assert banked == pytest.approx(flat * predicted / kappa, abs=1e-7)
     # and not the horizontal curvature: the term is 15 times the tolerance
     assert abs(banked - flat) > 1.4e-5
+
+
+@pytest.mark.parametrize("grade_pct", [8.0, -8.0])
+def test_the_lane_plane_curvature_of_a_banked_curve_in_a_vertical_curve(grade_pct):
+    """The vertical curve's part of the road plane's lane curvature, ``kv sin(bank)`` with ``kv =
+    -grade_rate / v`` (:func:`fusion.ekf._lane_plane_curvature`): on the banked left-hand curve
+    going into a vertical curve (8 % up or down over 300 m, 11 s in: inside it), the banked fit
+    less the same fit unbanked equals the model's prediction less the curvature (-3.1e-5 1/m
+    one way, +4e-7 the other, where the grade rate's sign decides; 2e-7 between fit and model
+    measured, a review's script), to 1e-6 1/m: a tenth of the ``kv sin(bank)`` term (3e-5), so a
+    sign slip in it fails."""
+    from fusion.ekf import _lane_plane_curvature
+    from fusion.noise import DIM_X, S
+
+    flat, *_ = _lane_fit_on_the_exact_road(0.0, t_s=11.0, grade_pct=grade_pct)
+    banked, kappa, bank, grade_rate, speed = _lane_fit_on_the_exact_road(-5.0, t_s=11.0, grade_pct=grade_pct)
+    x = np.zeros(DIM_X)
+    x[S.CURVATURE], x[S.BANK], x[S.SPEED], x[S.GRADE_RATE] = kappa, bank, speed, grade_rate
+    predicted, _ = _lane_plane_curvature(x, True)
+    kv_term = -grade_rate / speed * math.sin(bank)
+    assert abs(kv_term) > 1e-5          # the vertical curve is there
+    assert banked - flat == pytest.approx(predicted - kappa, abs=1e-6)

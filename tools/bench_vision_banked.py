@@ -113,7 +113,8 @@ def run(name: str, options, get, truth, frames) -> BankedRun:
         e = est.estimate(img)
         out.ms[i] = (time.perf_counter() - t0) * 1e3
         tr = truth.iloc[f]
-        out.curv_true[i] = tr.curvature_1_m
+        # what the lane fit measures: the road plane's curvature, kappa cos(bank) (fusion.ekf._lane_plane_curvature)
+        out.curv_true[i] = tr.curvature_1_m * math.cos(math.radians(tr.bank_deg))
         out.zeta_true[i] = -tr.curvature_1_m * math.sin(math.radians(tr.bank_deg))
         out.steady[i] = steady[f]
         out.valid[i] = e.valid

@@ -51,7 +51,9 @@ def with_truth(vision: pd.DataFrame, truth: pd.DataFrame, inputs) -> pd.DataFram
         v["yaw_per_twist_m"] = 0.0
         v["yaw_per_twist_here_m"] = v["yaw_per_twist_ahead_m"] = 0.0   # the twist response too
     if "curvature" in inputs:
-        v["curvature_1_m"] = np.interp(t, truth["t_s"], truth["curvature_1_m"])
+        # as the lane fit measures it: in the road plane, kappa cos(bank) (fusion.ekf._lane_plane_curvature;
+        # the vertical curve's kv sin(bank) left out)
+        v["curvature_1_m"] = np.interp(t, truth["t_s"], truth["curvature_1_m"] * np.cos(np.radians(truth["bank_deg"])))
         v["curvature_sigma_1_m"] = 1e-5
         v["curvature_per_twist_here_1_rad"] = v["curvature_per_twist_ahead_1_rad"] = 0.0
     return v
