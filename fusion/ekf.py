@@ -1285,11 +1285,18 @@ def _propagate_into(x, P, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_v
     road_rate)``."""
     x1, P1, F, Q, road_rate = _propagate(x, P, gyro, dt, follow, offset, has_q, taus, q_per_s, gyro_var, yaw_walk_var,
                                          rate_target)
+    _store_step(x1, P1, F, Q, x_prior, P_prior, F_out, Q_out)
+    return x1, P1, road_rate
+
+
+@nb.njit(cache=True)
+def _store_step(x1, P1, F, Q, x_prior, P_prior, F_out, Q_out):
+    """A propagation's prior, ``F`` and ``Q`` copied into the filter's own arrays (what
+    :func:`_propagate_into` and :func:`_imu_step` hand back instead of returning them)."""
     x_prior[:] = x1
     P_prior[:, :] = P1
     F_out[:, :] = F
     Q_out[:, :] = Q
-    return x1, P1, road_rate
 
 
 @nb.njit(cache=True)
@@ -1624,8 +1631,5 @@ def _imu_step(x, P, gyro_mean, dt, follow, offset, has_q, taus, q_per_s, gyro_va
         ok_g, d2, xg, Pg, _, _, _, _ = _gravity_update(x2, P2, accel, gyro, gyro_dot, rho, road_rate, has_q,
                                                        R_accel, gate3, gyro_var, dot_dt)
         x2, P2 = xg, Pg
-    x_prior[:] = x1
-    P_prior[:, :] = P1
-    F_out[:, :] = F
-    Q_out[:, :] = Q
+    _store_step(x1, P1, F, Q, x_prior, P_prior, F_out, Q_out)
     return road_rate, ok_v, ok_g, d2, x2, P2
