@@ -254,6 +254,12 @@ def without_pitch_gyro(drive: Path, run_dir: Path, t_loss_s: float) -> tuple[dic
 BIAS_DRAWS = 50
 
 
+def simulated_accel_bias(drive: Path) -> np.ndarray:
+    """The drive's simulated accelerometer bias (m/s^2, vehicle frame x, y, z; constant over the
+    drive), from its ``imu_truth.csv``."""
+    return pd.read_csv(drive / "imu_truth.csv")[[f"accel_bias_{a}_m_s2" for a in "xyz"]].to_numpy()[0]
+
+
 def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS, has_pitch_rate: bool = True) -> dict:
     """The forward filter on the run's vision and the drive's CAN log with the accelerometer's
     bias replaced by ``n`` draws from the datasheet's 1-sigma that the drive's config gives the
@@ -270,7 +276,7 @@ def bias_draws(drive: Path, run_dir: Path, n: int = BIAS_DRAWS, has_pitch_rate: 
 
     cfg, opts, imu, vision, truth = filter_inputs(drive, run_dir)
     sigma = np.broadcast_to(np.asarray(opts.noise.init_accel_bias_m_s2, dtype=float), (3,))
-    simulated = pd.read_csv(drive / "imu_truth.csv")[[f"accel_bias_{a}_m_s2" for a in "xyz"]].to_numpy()[0]
+    simulated = simulated_accel_bias(drive)
     t0 = float(vision["t_s"].iloc[0])
     scenario = drive.name.removeprefix("full-").rsplit("-", 1)[0]    # the same draws whatever the render's key
     rng = np.random.default_rng(int(hashlib.sha256(scenario.encode()).hexdigest()[:8], 16))
@@ -572,9 +578,9 @@ def car(drive: Path) -> dict:
     acc = summ["rmse_deg"]
     no_q, no_q_loss = without_pitch_gyro(drive, out, t_loss_s=8.0)
     cfg, opts, imu, vision, truth = filter_inputs(drive, out)
-    bias = pd.read_csv(drive / "imu_truth.csv")[[f"accel_bias_{a}_m_s2" for a in "xyz"]].iloc[-1]
     told = dataclasses.replace(opts, noise=dataclasses.replace(
-        opts.noise, accel_bias_prior_m_s2=tuple(float(b) for b in bias), init_accel_bias_m_s2=TOLD_ACCEL_BIAS_SIGMA))
+        opts.noise, accel_bias_prior_m_s2=tuple(float(b) for b in simulated_accel_bias(drive)),
+        init_accel_bias_m_s2=TOLD_ACCEL_BIAS_SIGMA))
     f = fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=told).fused
     return {"rows": [("fused (forward)", acc["fused"], summ["consistency"]["fraction_inside"]),
                      ("fused (smoothed)", summ_s["rmse_deg"]["fused"], summ_s["consistency"]["fraction_inside"]),
