@@ -30,7 +30,7 @@ import numpy as np
 from vision.frames import wrap_angle
 
 from .ekf import (DIM_X, GRAVITY_M_S2, AttitudeEKF, ImuStep, RollAhead, S, VisionMeasurement, accel_r_scale,
-                  relative_outputs, road_ahead_as_seen, vision_hx)
+                  curvature_from_lane_fit, relative_outputs, road_ahead_as_seen, vision_hx)
 from .options import FusionOptions
 
 __all__ = ["FusionOptions", "Estimate", "FusionStream", "StepRecord"]
@@ -708,8 +708,8 @@ class FusionStream:
                 ekf.P[road, :] = ekf.P[level, :]
                 ekf.P[:, road] = ekf.P[:, level]
                 ekf.P[road, road] = ekf.P[level, level] + prior**2
-            if math.isfinite(kappa):
-                ekf.x[S.CURVATURE] = kappa
+            if math.isfinite(kappa):   # the fit's is the road plane's, at the bank just taken
+                ekf.x[S.CURVATURE] = curvature_from_lane_fit(ekf.x, kappa)
             self._vision_initialized = True
         if ekf.update_vision(m, defer_roll=defer, bank_rate_ahead=rate_ahead):
             self.counts["vision_used"] += first
@@ -739,11 +739,13 @@ class FusionStream:
         ekf, n = self.ekf, self.options.noise
         x = ekf.x
         states = [(S.YAW_REL, angles[2], n.init_angle_rad), (S.GRADE, x[S.PITCH_W] - angles[1], n.init_grade_rad),
-                  (S.GRADE_RATE, 0.0, n.init_grade_rate_rad_s),
-                  (S.CURVATURE, kappa if math.isfinite(kappa) else x[S.CURVATURE], n.init_curvature_1_m)]
+                  (S.GRADE_RATE, 0.0, n.init_grade_rate_rad_s)]
         if bank:
             states += [(S.BANK, x[S.ROLL_W] - angles[0], n.init_bank_rad), (S.BANK_RATE, 0.0, n.init_bank_rate_rad_s)]
         self._reset(tuple(states))
+        # the fit's curvature is the road plane's: the state's at the bank and grade rate just reset
+        kappa_state = curvature_from_lane_fit(x, kappa) if math.isfinite(kappa) else x[S.CURVATURE]
+        self._reset(((S.CURVATURE, kappa_state, n.init_curvature_1_m),))
 
     def _level_again(self, s: _ImuSample, v: float) -> None:
         """The first wheel speed after the start: the world roll from this sample's specific

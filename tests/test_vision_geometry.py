@@ -295,7 +295,7 @@ def test_the_lane_fit_measures_the_curvature_in_the_road_plane():
     about -0.3 % at this reach): what is left is the geometry, to 1e-7 1/m (the fit's
     numerical floor on exact points is under 1e-8; 1e-7 is 0.0025 % of the curvature, a
     fifteenth of the 1.5e-5 the term is)."""
-    from fusion.ekf import _lane_plane_curvature
+    from fusion.ekf import _lane_plane_curvature, curvature_from_lane_fit
     from fusion.noise import DIM_X, S
 
     flat, kappa, *_ = _lane_fit_on_the_exact_road(0.0)
@@ -310,6 +310,9 @@ def test_the_lane_fit_measures_the_curvature_in_the_road_plane():
     assert banked == pytest.approx(flat * predicted / kappa, abs=1e-7)
     # and not the horizontal curvature: the term is 15 times the tolerance
     assert abs(banked - flat) > 1.4e-5
+    # the curvature state that the first frame and a re-acquisition take from the banked fit:
+    # the unbanked fit's (the old code took the banked fit itself, 1.5e-5 lower)
+    assert curvature_from_lane_fit(x, banked) == pytest.approx(flat, abs=1e-7)
 
 
 @pytest.mark.parametrize("grade_pct", [8.0, -8.0])
@@ -321,7 +324,7 @@ def test_the_lane_plane_curvature_of_a_banked_curve_in_a_vertical_curve(grade_pc
     one way, +4e-7 the other, where the grade rate's sign decides; 2e-7 between fit and model
     measured, a review's script), to 1e-6 1/m: a tenth of the ``kv sin(bank)`` term (3e-5), so a
     sign slip in it fails."""
-    from fusion.ekf import _lane_plane_curvature
+    from fusion.ekf import _lane_plane_curvature, curvature_from_lane_fit
     from fusion.noise import DIM_X, S
 
     flat, *_ = _lane_fit_on_the_exact_road(0.0, t_s=11.0, grade_pct=grade_pct)
@@ -332,3 +335,5 @@ def test_the_lane_plane_curvature_of_a_banked_curve_in_a_vertical_curve(grade_pc
     kv_term = -grade_rate / speed * math.sin(bank)
     assert abs(kv_term) > 1e-5          # the vertical curve is there
     assert banked - flat == pytest.approx(predicted - kappa, abs=1e-6)
+    # the curvature state taken from the banked fit (a first frame's) is the unbanked fit's
+    assert curvature_from_lane_fit(x, banked) == pytest.approx(flat, abs=1e-6)
