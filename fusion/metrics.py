@@ -14,7 +14,8 @@ from scipy.stats import chi2
 
 from vision.frames import R_from_rpy_scalar, rpy_from_R_scalar, so3_exp_scalar, wrap_angle
 
-__all__ = ["ANGLES", "rmse_table", "interp_truth", "wrap_deg", "consistency", "Consistency", "gyro_attitude_drift"]
+__all__ = ["ANGLES", "rmse_table", "interp_truth", "wrap_deg", "consistency", "Consistency", "gyro_attitude_drift",
+           "truth_lane_plane_curvature"]
 
 #: Output angles compared with truth: ``<stem>_deg`` in the estimate and in the truth.
 ANGLES = ("roll", "pitch", "yaw", "bank", "roll_world", "pitch_world", "grade")
@@ -47,6 +48,23 @@ def interp_truth(truth: pd.DataFrame, t_s: np.ndarray) -> pd.DataFrame:
             v = np.interp(t_s, tt, y, left=np.nan, right=np.nan)
             out[c] = wrap_deg(v) if angle else v
     return pd.DataFrame(out)
+
+
+def truth_lane_plane_curvature(truth: pd.DataFrame) -> np.ndarray:
+    """The lane curvature that a lane fit in the road's tangent plane measures, 1/m, per row of a
+    truth table (``t_s``, ``curvature_1_m``, ``bank_deg``, ``speed_m_s`` and the grade,
+    ``grade_deg`` or the simulator's :data:`SIMULATOR_GRADE_COLUMN`): ``kappa cos(bank) + kv
+    sin(bank)``, ``kv = -grade_rate / v`` (the grade's rate differenced over the rows; 0 below
+    1 m/s), as the filter models the fit (:func:`fusion.ekf._lane_plane_curvature`). What the
+    tests' synthetic vision gives and the tools score the vision's curvature against."""
+    t = truth["t_s"].to_numpy(dtype=float)
+    grade = np.radians(truth["grade_deg" if "grade_deg" in truth else SIMULATOR_GRADE_COLUMN].to_numpy(dtype=float))
+    bank = np.radians(truth["bank_deg"].to_numpy(dtype=float))
+    v = truth["speed_m_s"].to_numpy(dtype=float)
+    grade_rate = np.gradient(grade, t) if len(t) > 1 else np.zeros(len(t))
+    moving = v > 1.0
+    kv = np.where(moving, -grade_rate / np.where(moving, v, 1.0), 0.0)
+    return truth["curvature_1_m"].to_numpy(dtype=float) * np.cos(bank) + kv * np.sin(bank)
 
 
 def wrap_deg(a):

@@ -19,6 +19,7 @@ from drivesim.drive import SIM_ATTITUDE_WALK_DEG_SQRT_S, build_road, truth_frame
 from drivesim.imu_model import simulate_imu
 from drivesim.scenario import load_scenario
 from drivesim.trajectory import Trajectory
+from fusion.metrics import truth_lane_plane_curvature
 from imu.config import ImuMount
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "configs" / "scenarios"
@@ -87,9 +88,8 @@ def synth_drive(scenario: str = "banked_curves_60s.toml", duration_s: float | No
         "roll_deg": np.degrees(tr["roll"]) + noise[:, 0], "pitch_deg": np.degrees(tr["pitch"]) + noise[:, 1],
         "yaw_deg": np.degrees(tr["yaw"]) + noise[:, 2], "valid": True,
         "roll_sigma_deg": vision_sigma_deg, "pitch_sigma_deg": vision_sigma_deg, "yaw_sigma_deg": vision_sigma_deg,
-        # the lane fit's curvature is the road plane's, kappa cos(bank) (fusion.ekf._lane_plane_curvature;
-        # the vertical curve's kv sin(bank) left out)
-        "curvature_1_m": tr["curvature_1_m"] * np.cos(tr["bank"]) * (1.0 + curvature_error),
+        # the lane fit's curvature is the road plane's (fusion.ekf._lane_plane_curvature)
+        "curvature_1_m": truth_lane_plane_curvature(truth_frame(traj, tf, tf)) * (1.0 + curvature_error),
         "lateral_offset_m": tr["lateral_offset_m"],
         # what a good lane fit would claim: 2e-4 1/m plus 5 % (a biased fit lies about it)
         "curvature_sigma_1_m": 2e-4 + 0.05 * np.abs(tr["curvature_1_m"]),

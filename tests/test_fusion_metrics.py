@@ -107,3 +107,30 @@ def test_windows_across_a_gap_are_left_out_and_bad_input_is_refused():
         gyro_attitude_drift(t, w, truth, 8.0)
     with pytest.raises(ValueError, match=r"\(N, 3\)"):
         gyro_attitude_drift(t, w[:, :2], truth, 1.0)
+
+
+def test_the_truths_lane_plane_curvature_is_the_filters_model():
+    """``truth_lane_plane_curvature`` (what the tests' synthetic vision gives and the tools score
+    the lane fit against) is the filter's model of the fit, :func:`fusion.ekf._lane_plane_curvature`,
+    at the truth's bank, speed and grade rate: on a banked curve (6 deg, 1/250 m) going into a sag
+    (the grade, positive downhill, falling 0.5 deg/s at 20 m/s: ``kv`` +4.4e-4 1/m) to 1e-12 1/m
+    (the grade is linear in time, so the difference is exact), and without ``kv`` below 1 m/s,
+    where the filter leaves it out. The ``kv sin(bank)`` term is 4.6e-5 1/m here: a sign slip or
+    a missing term fails by 40 million tolerances."""
+    from fusion.ekf import _lane_plane_curvature
+    from fusion.metrics import truth_lane_plane_curvature
+    from fusion.noise import DIM_X, S
+
+    t = np.arange(0.0, 2.0, 0.01)
+    bank, kappa, rate = math.radians(6.0), 1 / 250, math.radians(-0.5)
+    speed = np.where(t < 1.0, 20.0, 0.5)
+    truth = pd.DataFrame({"t_s": t, "curvature_1_m": kappa, "bank_deg": math.degrees(bank),
+                          "road_pitch_deg": np.degrees(rate * t), "speed_m_s": speed})
+    got = truth_lane_plane_curvature(truth)
+    x = np.zeros(DIM_X)
+    x[S.CURVATURE], x[S.BANK], x[S.GRADE_RATE] = kappa, bank, rate
+    for i in (10, 150):
+        x[S.SPEED] = speed[i]
+        assert got[i] == pytest.approx(_lane_plane_curvature(x, speed[i] > 1.0)[0], abs=1e-12)
+    assert abs(got[10] - kappa * math.cos(bank)) > 4e-5          # the vertical curve's part is there
+    assert got[150] == pytest.approx(kappa * math.cos(bank), abs=1e-15)

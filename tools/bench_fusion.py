@@ -377,7 +377,7 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
     error / sigma with the sigma as the filter widens it (``noise``, a
     :class:`fusion.noise.NoiseModel`: scaled, floored, and a fraction of the modelled road-in-view
     effect added, here from the true twist; the filter takes it from its own bank rate)."""
-    from fusion.metrics import interp_truth
+    from fusion.metrics import interp_truth, truth_lane_plane_curvature
 
     v = read_vision(run_dir)
     v = v[v["valid"] == 1]
@@ -406,9 +406,8 @@ def vision_sigmas(drive: Path, run_dir: Path, noise) -> dict:
         out[angle] = _steady_and_runoffs(e, sig, used, ok, steady)
     # The lane fit's other outputs the filter reads: the curvature (its own sigma, floored as the
     # filter floors it) and the lateral offset at the contact point (no sigma reported).
-    # against the road plane's curvature, kappa cos(bank), as the filter models the fit's (since e68d151)
-    e = v["curvature_1_m"].to_numpy() - tr["curvature_1_m"].to_numpy() * np.cos(np.radians(tr["bank_deg"].to_numpy())) \
-        - kappa_effect
+    # against the road plane's curvature, as the filter models the fit's (since e68d151)
+    e = v["curvature_1_m"].to_numpy() - np.interp(t, tt, truth_lane_plane_curvature(truth)) - kappa_effect
     sig = v["curvature_sigma_1_m"].to_numpy()
     used = np.hypot(noise.curvature_sigma_1_m(v["curvature_1_m"].to_numpy(), sig),
                     noise.vision_road_model_error * kappa_effect)

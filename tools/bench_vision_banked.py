@@ -99,6 +99,7 @@ def frames_of(name: str, source: str):
 
 
 def run(name: str, options, get, truth, frames) -> BankedRun:
+    from fusion.metrics import truth_lane_plane_curvature
     from vision.estimator import Estimator
 
     sc, road = scenario_setup(name)
@@ -107,14 +108,15 @@ def run(name: str, options, get, truth, frames) -> BankedRun:
     out = BankedRun(*(np.full((n, 3), np.nan) for _ in range(2)), *(np.full(n, np.nan) for _ in range(5)),
                     np.zeros(n, bool), np.zeros(n, bool), np.zeros(n), np.asarray(frames))
     steady = steady_mask(truth)
+    # what the lane fit measures: the road plane's curvature (fusion.ekf._lane_plane_curvature)
+    plane_curvature = truth_lane_plane_curvature(truth)
     for i, f in enumerate(frames):
         img = get(f)
         t0 = time.perf_counter()
         e = est.estimate(img)
         out.ms[i] = (time.perf_counter() - t0) * 1e3
         tr = truth.iloc[f]
-        # what the lane fit measures: the road plane's curvature, kappa cos(bank) (fusion.ekf._lane_plane_curvature)
-        out.curv_true[i] = tr.curvature_1_m * math.cos(math.radians(tr.bank_deg))
+        out.curv_true[i] = plane_curvature[f]
         out.zeta_true[i] = -tr.curvature_1_m * math.sin(math.radians(tr.bank_deg))
         out.steady[i] = steady[f]
         out.valid[i] = e.valid

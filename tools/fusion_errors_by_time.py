@@ -44,6 +44,8 @@ _ORACLES = {
 def with_truth(vision: pd.DataFrame, truth: pd.DataFrame, inputs) -> pd.DataFrame:
     """``vision`` with the named inputs (``yaw``, ``curvature``) replaced by the truth at its
     frame times."""
+    from fusion.metrics import truth_lane_plane_curvature
+
     v = vision.copy()
     t = v["t_s"].to_numpy()
     if "yaw" in inputs:
@@ -51,9 +53,8 @@ def with_truth(vision: pd.DataFrame, truth: pd.DataFrame, inputs) -> pd.DataFram
         v["yaw_per_twist_m"] = 0.0
         v["yaw_per_twist_here_m"] = v["yaw_per_twist_ahead_m"] = 0.0   # the twist response too
     if "curvature" in inputs:
-        # as the lane fit measures it: in the road plane, kappa cos(bank) (fusion.ekf._lane_plane_curvature;
-        # the vertical curve's kv sin(bank) left out)
-        v["curvature_1_m"] = np.interp(t, truth["t_s"], truth["curvature_1_m"] * np.cos(np.radians(truth["bank_deg"])))
+        # as the lane fit measures it: in the road plane (fusion.ekf._lane_plane_curvature)
+        v["curvature_1_m"] = np.interp(t, truth["t_s"], truth_lane_plane_curvature(truth))
         v["curvature_sigma_1_m"] = 1e-5
         v["curvature_per_twist_here_1_rad"] = v["curvature_per_twist_ahead_1_rad"] = 0.0
     return v
