@@ -573,12 +573,6 @@ def accel_r_scale(noise: NoiseModel, update_period_s: float) -> float:
     return 1.0 / (noise.accel_meas_rate_hz * update_period_s)
 
 
-def _target(u: ImuStep) -> float:
-    """The bank rate's mean over interval ``u`` (rad/s): the mapped road's, else 0."""
-    t = u.bank_rate_target_rad_s
-    return 0.0 if math.isnan(t) else t
-
-
 class AttitudeEKF(ExtendedKalmanFilter):
     """filterpy EKF with the nonlinear process model of the module docstring.
 
@@ -663,8 +657,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     def predict_x(self, u: ImuStep = None) -> None:
         """Propagate the state over one IMU interval (module docstring, "Process")."""
-        self.x = _predict_x(self.x, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m,
-                            self.has_pitch_rate, self._rate_taus(u), _target(u))
+        gyro, dt, follow, offset, has_q, taus, _, _, _, target = self._interval_args(u)
+        self.x = _predict_x(self.x, gyro, dt, follow, offset, has_q, taus, target)
 
     def set_bank_rate_sigma(self, sigma_rad_s: float | None) -> None:
         """Stationary 1-sigma of the bank rate from now on (None: ``noise.bank_rate_rad_s``);
@@ -673,22 +667,28 @@ class AttitudeEKF(ExtendedKalmanFilter):
         if sigma_rad_s is not None:
             self._q_scheduled[S.BANK_RATE] = 2.0 * sigma_rad_s**2 / self.noise.bank_rate_tau_s
 
-    def _q_per_s(self, u: ImuStep) -> np.ndarray:
-        """Diagonal process noise per second for this interval (the scheduled bank rate's while
-        the vision is there)."""
-        return self._q_scheduled if self._bank_rate_scheduled and not u.vision_gap else self._q_const
+    def _interval_args(self, u: ImuStep) -> tuple:
+        """The compiled process model's arguments for interval ``u`` (:func:`_transition`'s after
+        the state, then the bank rate's mean), worked out in one call per propagation:
+        ``(gyro, dt, follow_road, lateral_offset, has_pitch_rate, taus, q_per_s, gyro_var,
+        yaw_walk_var, bank_rate_target)``.
 
-    def _rate_taus(self, u: ImuStep) -> tuple[float, float, float]:
-        """Correlation times of the bank rate, the grade rate and (without a pitch gyro) the
-        pitch rate over this interval: where the road ahead is mapped (a finite
+        ``taus``: the correlation times of the bank rate, the grade rate and (without a pitch
+        gyro) the pitch rate over this interval: where the road ahead is mapped (a finite
         :attr:`ImuStep.bank_rate_target_rad_s`), ``bank_rate_tau_mapped_s`` for the bank rate;
         else while the vision is away, ``bank_rate_tau_no_vision_s`` (the bank holds); the grade
-        rate keeps its own, the accelerometer measures it (module docstring)."""
-        if not math.isnan(u.bank_rate_target_rad_s):
-            return self._taus_mapped
-        if u.vision_gap:
-            return self._taus_no_vision
-        return self._taus
+        rate keeps its own, the accelerometer measures it (module docstring). ``q_per_s``: the
+        diagonal process noise per second (the scheduled bank rate's while the vision is there).
+        ``bank_rate_target``: the bank rate's mean over the interval (rad/s), the mapped road's,
+        else 0."""
+        target, gap = u.bank_rate_target_rad_s, u.vision_gap
+        if math.isnan(target):
+            taus, target = (self._taus_no_vision if gap else self._taus), 0.0
+        else:
+            taus = self._taus_mapped
+        q_per_s = self._q_scheduled if self._bank_rate_scheduled and not gap else self._q_const
+        return (u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate, taus, q_per_s,
+                self._gyro_var, self._yaw_walk_var, target)
 
     def road_turn_rate(self, u: ImuStep) -> float:
         """Heading rate of the road at the vehicle, rad/s: ``kappa v cos(yaw_rel) / (1 - kappa d)``,
@@ -697,8 +697,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
 
     def transition(self, u: ImuStep):
         """Jacobian ``F = I + A dt`` and process noise ``Q`` of one interval (:func:`_transition`)."""
-        return _transition(self.x, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
-                           self._rate_taus(u), self._q_per_s(u), self._gyro_var, self._yaw_walk_var)
+        return _transition(self.x, *self._interval_args(u)[:9])
 
     def predict(self, u: ImuStep = None) -> None:
         """filterpy's ``predict`` (``predict_x``, then ``P = F P F^T + Q``, then the priors),
@@ -712,10 +711,8 @@ class AttitudeEKF(ExtendedKalmanFilter):
         :meth:`predict`), in one compiled call: it runs once or twice per IMU sample. Returns
         the road's heading rate after the step (:meth:`road_turn_rate`). The prior, ``F`` and
         ``Q`` are written into the filter's own arrays, as :meth:`propagate_and_update` does."""
-        self.x, self.P, road_rate = _propagate_into(
-            self.x, self.P, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
-            self._rate_taus(u), self._q_per_s(u), self._gyro_var, self._yaw_walk_var, _target(u), self.x_prior,
-            self.P_prior, self.F, self.Q)
+        self.x, self.P, road_rate = _propagate_into(self.x, self.P, *self._interval_args(u), self.x_prior,
+                                                    self.P_prior, self.F, self.Q)
         return road_rate
 
     # ---- measurements ----
@@ -886,9 +883,7 @@ class AttitudeEKF(ExtendedKalmanFilter):
         the filter's own ``x_prior``, ``P_prior``, ``F``, ``Q`` arrays (copy them to keep them):
         arrays returned from the compiled call cost about 1 us each to hand back."""
         road_rate, ok_v, ok_g, d2, self.x, self.P = _imu_step(
-            self.x, self.P, u.gyro_rad_s, u.dt_s, u.follow_road, u.lateral_offset_m, self.has_pitch_rate,
-            self._rate_taus(u), self._q_per_s(u), self._gyro_var, self._yaw_walk_var,
-            _target(u), float(speed_m_s), self._speed_var, self._gate[1], np.asarray(accel_m_s2, dtype=float),
+            self.x, self.P, *self._interval_args(u), float(speed_m_s), self._speed_var, self._gate[1], np.asarray(accel_m_s2, dtype=float),
             np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float), self._rho,
             gravity, self._accel_r(r_scale), self._gate[3], float(gyro_dot_dt_s), self.x_prior, self.P_prior, self.F,
             self.Q)
