@@ -883,10 +883,10 @@ class AttitudeEKF(ExtendedKalmanFilter):
         the filter's own ``x_prior``, ``P_prior``, ``F``, ``Q`` arrays (copy them to keep them):
         arrays returned from the compiled call cost about 1 us each to hand back."""
         road_rate, ok_v, ok_g, d2, self.x, self.P = _imu_step(
-            self.x, self.P, *self._interval_args(u), float(speed_m_s), self._speed_var, self._gate[1], np.asarray(accel_m_s2, dtype=float),
-            np.asarray(gyro_rad_s, dtype=float), np.asarray(gyro_dot_rad_s2, dtype=float), self._rho,
-            gravity, self._accel_r(r_scale), self._gate[3], float(gyro_dot_dt_s), self.x_prior, self.P_prior, self.F,
-            self.Q)
+            self.x, self.P, *self._interval_args(u), float(speed_m_s), self._speed_var, self._gate[1],
+            np.asarray(accel_m_s2, dtype=float), np.asarray(gyro_rad_s, dtype=float),
+            np.asarray(gyro_dot_rad_s2, dtype=float), self._rho, gravity, self._accel_r(r_scale), self._gate[3],
+            float(gyro_dot_dt_s), self.x_prior, self.P_prior, self.F, self.Q)
         self.x_post, self.P_post = self.x, self.P
         self.last_d2 = d2
         return road_rate, ok_v, ok_g
