@@ -28,7 +28,7 @@ runs the whole ``vifusion run`` as a user would (a subprocess, timed), then prin
   100 ms;
 * speed: the run's wall time against the drive's duration, with the fixed costs apart (median
   and range of ``SPEED_RUNS`` runs: the machine is shared), the filter alone in IMU samples
-  per second, and LiveFusion's cost per IMU sample;
+  per second (median and range of ``FILTER_RUNS``), and LiveFusion's cost per IMU sample;
 * memory: the peak of a ``vifusion run`` and of a ``vifusion run --smooth`` (runs of their
   own), summed over its processes (proportional set sizes) and of the largest one;
 * the machine's own speed (:func:`machine_reference`), to compare benches across machines;
@@ -110,6 +110,8 @@ def cached_full_drive(name: str) -> Path:
 
 #: Runs of each drive the speed table takes the median of.
 SPEED_RUNS = 3
+#: Runs of the filter alone per drive (:func:`filter_rate`): median and range.
+FILTER_RUNS = 7
 
 
 def read_vision(run_dir: Path) -> pd.DataFrame:
@@ -466,18 +468,20 @@ def time_offsets(drive: Path, run_dir: Path) -> list:
     return out
 
 
-def filter_rate(drive: Path) -> float:
-    """IMU samples per second through the forward filter alone (median of 3), with the drive's
-    ``[fusion]`` options as its accuracy rows (until 2026-11-29 the defaults)."""
+def filter_rate(drive: Path) -> tuple[float, float, float]:
+    """IMU samples per second through the forward filter alone, with the drive's ``[fusion]``
+    options as its accuracy rows (until 2026-11-29 the defaults): the median, least and most of
+    :data:`FILTER_RUNS` runs (the same code's rate moves by tens of percent from run to run on a
+    shared machine: one median of 3 said 7,364 where the quiet machine gives 13,600)."""
     from fusion.pipeline import fuse
 
     cfg, opts, imu, vision, _ = filter_inputs(drive, drive.parent / (drive.name + "-run"))
     rates = []
-    for _ in range(3):
+    for _ in range(FILTER_RUNS):
         t0 = time.perf_counter()
         fuse(imu, vision, lever_arm_m=cfg.imu.position_m, options=opts)
         rates.append(len(imu) / (time.perf_counter() - t0))
-    return statistics.median(rates)
+    return statistics.median(rates), min(rates), max(rates)
 
 
 def live_cost_us(drive: Path) -> float:
@@ -763,13 +767,16 @@ def main(argv=None) -> int:
         print(f"{name:<26} {cells}")
     print()
     print(f"{'drive':<26} {'duration':>9} {'vifusion run':>13} {'fixed':>7} {'rest / duration (range)':>24} "
-          f"{'filter alone':>16} {'LiveFusion':>14} {'memory: run':>12} {'--smooth':>9}")
-    for name, dur, wall, fixed, (rest, lo, hi), rate, live_us, (mem, mem_one, mem_s, mem_s_one) in speed_rows:
+          f"{'filter alone (range)':>30} {'LiveFusion':>14} {'memory: run':>12} {'--smooth':>9}")
+    for name, dur, wall, fixed, (rest, lo, hi), (rate, r_lo, r_hi), live_us, (mem, mem_one, mem_s, mem_s_one) \
+            in speed_rows:
         print(f"{name:<26} {dur:8.1f}s {wall:12.1f}s {fixed:6.1f}s {rest:10.1f}% ({lo:4.1f}-{hi:4.1f}%) "
-              f"{rate:11,.0f} /s {live_us:9.0f} us/sample {mem:5.0f} ({mem_one:3.0f}) {mem_s:4.0f} ({mem_s_one:3.0f}) MB")
+              f"{rate:11,.0f} /s ({r_lo:6,.0f}-{r_hi:6,.0f}) {live_us:9.0f} us/sample "
+              f"{mem:5.0f} ({mem_one:3.0f}) {mem_s:4.0f} ({mem_s_one:3.0f}) MB")
     print(f"(vifusion run: wall time of the whole command in a subprocess, 2 cores, median of {SPEED_RUNS} runs;")
     print(" fixed = start-up + report; the rest: vision, CAN decode, fusion, writing the tables;")
-    print(" filter alone: IMU samples/s through the forward filter with vision; LiveFusion: CAN decode + filter")
+    print(f" filter alone: IMU samples/s through the forward filter with vision, median and range of {FILTER_RUNS} runs;")
+    print(" LiveFusion: CAN decode + filter")
     print(" + vision results, per IMU sample; memory: peak of the processes' summed proportional set size, in")
     print(" brackets the largest one process's, in a run of its own, sampled every 50 ms)")
     loop_s, import_s = machine_reference()
