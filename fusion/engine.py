@@ -61,6 +61,12 @@ _MAX_VISION_LEAD_S = 1.0
 #: The roll's 1-sigma at a start without a wheel speed (:meth:`FusionStream._init_from_accel`):
 #: a motorcycle's lean, which the accelerometer alone cannot see, up to about 45 deg.
 _ROLL_SIGMA_WITHOUT_SPEED_RAD = math.radians(25.0)
+#: The specific force that can level the filter (the start, the first wheel speed, a re-acquired
+#: gravity reference), in g: a coordinated lean of 55 deg reads 1.74 g, while a zeroed CAN frame
+#: of a +-4 g accelerometer reads 7 g and set the start's pitch to 90 deg, where the first gravity
+#: update divided by zero (a review). Outside it the start is level with the roll's and pitch's
+#: sigma :data:`_ROLL_SIGMA_WITHOUT_SPEED_RAD`, and the gravity updates bring them in.
+LEVELLING_FORCE_G = (0.5, 2.0)
 
 
 def _all_finite(a: np.ndarray) -> bool:
@@ -135,6 +141,7 @@ class _ImuSample:
     applied: tuple = ()   # measurements applied in the interval ending here (for replays)
     r_scale: float = 1.0  # factor on the accelerometer noise variance (NoiseModel.accel_meas_rate_hz)
     state: tuple = ()     # the stream's own state after this sample (FusionStream._snapshot)
+    gravity_reacquired: bool = False   # the gravity reference re-acquired at it, as counted
 
 
 class FusionStream:
@@ -193,12 +200,14 @@ class FusionStream:
         self._speed_initialized = False
         self._speed_rejected_in_row = 0
         self._roll_rejected_in_row = 0
+        self._gravity_refused_since = math.nan   # the first of the gravity updates refused in a row, s
         self._roll_prop = 0.0   # running sum of the roll (relative to level) the propagation turned, rad
         self._vision_times: deque[float] = deque()   # capture times of recent results (duplicates)
         self._initial_state = self._snapshot()        # what restart() returns the flags to
         self.counts = dict(imu=0, imu_invalid=0, imu_gaps=0, vision_used=0, vision_rejected=0, vision_invalid=0,
                            vision_late=0, vision_too_old=0, vision_duplicate=0, vision_future=0, vision_implausible=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
-                           roll_ahead_reacquired=0, twist_used=0, twist_rejected=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0)
+                           roll_ahead_reacquired=0, twist_used=0, twist_rejected=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0,
+                           gravity_reacquired=0, level_skipped=0)
 
     # ---- inputs ----
 
@@ -374,13 +383,36 @@ class FusionStream:
         ekf = self.ekf
         known = math.isfinite(s.speed)
         v = s.speed if known else 0.0  # the first wheel speed sets the state properly
-        ekf.x[S.ROLL_W] = self._level_roll(s, v)
-        f = s.accel - ekf.x[S.ACCEL_BIAS]
-        ekf.x[S.PITCH_W] = math.asin(max(-1.0, min(1.0, -f[0] / GRAVITY_M_S2)))
         ekf.x[S.SPEED] = v
-        if not known:
-            ekf.P[S.ROLL_W, S.ROLL_W] = max(ekf.P[S.ROLL_W, S.ROLL_W], _ROLL_SIGMA_WITHOUT_SPEED_RAD**2)
+        if not self._levels(s):
+            # a force no attitude explains (a zeroed frame, a spike): start level, the roll and
+            # pitch known to _ROLL_SIGMA_WITHOUT_SPEED_RAD, for the gravity updates to bring in
+            for i in (S.ROLL_W, S.PITCH_W):
+                ekf.x[i] = 0.0
+                ekf.P[i, i] = max(ekf.P[i, i], _ROLL_SIGMA_WITHOUT_SPEED_RAD**2)
+        else:
+            ekf.x[S.ROLL_W] = self._level_roll(s, v)
+            ekf.x[S.PITCH_W] = self._level_pitch(s)
+            if not known:
+                ekf.P[S.ROLL_W, S.ROLL_W] = max(ekf.P[S.ROLL_W, S.ROLL_W], _ROLL_SIGMA_WITHOUT_SPEED_RAD**2)
         self._initialized = True
+
+    def _levels(self, s: _ImuSample) -> bool:
+        """Whether sample ``s``'s specific force can level the filter (:data:`LEVELLING_FORCE_G`);
+        one that cannot is counted (``counts["level_skipped"]``)."""
+        lo, hi = LEVELLING_FORCE_G
+        f = math.sqrt(sum(a * a for a in s.accel.tolist())) / GRAVITY_M_S2
+        if lo < f < hi:
+            return True
+        self.counts["level_skipped"] += 1
+        return False
+
+    def _level_pitch(self, s: _ImuSample) -> float:
+        """The pitch relative to level from sample ``s``'s longitudinal specific force, ``f_x =
+        a_x - g sin(pitch)``, with the acceleration state's ``a_x`` (0 at the start)."""
+        ekf = self.ekf
+        f = s.accel - ekf.x[S.ACCEL_BIAS]
+        return math.asin(max(-1.0, min(1.0, -(f[0] - ekf.x[S.ACCEL_X]) / GRAVITY_M_S2)))
 
     def _level_roll(self, s: _ImuSample, v: float) -> float:
         """The roll relative to level from sample ``s``'s specific force at speed ``v``, the
@@ -428,6 +460,8 @@ class FusionStream:
             else:
                 self._propagate(t0, s.t, (g0 + s.gyro) / 2, imu_index=s.index)
                 self._sample_updates(s)
+            if s.t - self._gravity_refused_since >= self.options.gravity_reacquire_after_s:   # (NaN: False)
+                self._reacquire_gravity(s)
         ekf = self.ekf
         # At the sample's own time (or before the very first sample): after its IMU
         # measurements, in the same order as a late result would be applied.
@@ -455,6 +489,11 @@ class FusionStream:
     def _tally(self, s: _ImuSample, speed_refused: bool, gravity_refused: bool) -> None:
         """Count sample ``s``'s refused updates once: a replay (late vision) replaces what its
         first pass counted instead of adding to it."""
+        if self._speed_initialized and s.index % self.options.gravity_every == 0:    # attempted
+            if not gravity_refused:
+                self._gravity_refused_since = math.nan
+            elif math.isnan(self._gravity_refused_since):
+                self._gravity_refused_since = s.t
         new = (int(speed_refused), int(gravity_refused))
         if new != s.refused:     # (most samples: nothing refused, then or now)
             self.counts["speed_rejected"] += new[0] - s.refused[0]
@@ -763,10 +802,26 @@ class FusionStream:
         after it was refused as an outlier (a review found it). The pitch keeps its estimate:
         the accelerometer measured it all along (at constant speed), and one sample's
         ``-f_x / g``, with the rider's pitching in it, set the IMU-only filter off by 19 deg."""
+        if not self._levels(s):
+            return          # the roll keeps the start's sigma; the gravity updates bring it in
+        self._level(s, v)
+
+    def _level(self, s: _ImuSample, v: float, pitch: bool = False) -> float:
+        """The world roll (and with ``pitch`` the pitch) from sample ``s``'s specific force at
+        speed ``v`` (:meth:`_level_roll`, :meth:`_level_pitch`), the bank (the grade) moved with
+        it, so that the angles relative to the road stay, and their common direction reopened to
+        the starting sigma; a part of the last step's prediction for the smoother. Returns the
+        world roll's change, rad."""
         ekf, n = self.ekf, self.options.noise
         e = np.zeros(DIM_X)
         e[[S.ROLL_W, S.BANK]] = 1.0
-        shift, grow = (self._level_roll(s, v) - ekf.x[S.ROLL_W]) * e, n.init_angle_rad**2 * np.outer(e, e)
+        d_roll = self._level_roll(s, v) - ekf.x[S.ROLL_W]
+        shift, grow = d_roll * e, n.init_angle_rad**2 * np.outer(e, e)
+        if pitch:
+            e = np.zeros(DIM_X)
+            e[[S.PITCH_W, S.GRADE]] = 1.0
+            shift += (self._level_pitch(s) - ekf.x[S.PITCH_W]) * e
+            grow += n.init_angle_rad**2 * np.outer(e, e)
 
         def level(x, P):
             x += shift
@@ -777,6 +832,34 @@ class FusionStream:
             st = self.steps[-1]
             st.x_prior, st.P_prior = st.x_prior.copy(), st.P_prior.copy()
             level(st.x_prior, st.P_prior)
+        return d_roll
+
+    def _reacquire_gravity(self, s: _ImuSample) -> None:
+        """Every gravity update refused for ``options.gravity_reacquire_after_s``: the world roll
+        and pitch from sample ``s``'s specific force again (:meth:`_level`; from the next sample
+        that can level the filter, if this one cannot), counted once per sample
+        (``counts["gravity_reacquired"]``; a replay does not count it again). The gate cannot
+        tell a gyro glitch that turned the attitude (a zeroed CAN frame reads -164 deg/s on each
+        axis: 16 deg in 0.1 s) from a bad accelerometer; the accelerometer that kept disagreeing
+        for a second is the one to believe, as the vision's and the speed's re-acquisitions do."""
+        if not self._levels(s):
+            return
+        self._level(s, self.ekf.x[S.SPEED], pitch=True)
+        self._gravity_refused_since = math.nan
+        # The glitch turned the heading too: the yaw relative to the road is reopened and the
+        # next frame sets the road's states again as the first one does (yaw, bank and grade
+        # from the new world attitude). Left as it was (16 deg off, its sigma 0.3), its error
+        # reached the gravity model's path direction and the vision's coupling: every gravity
+        # update was refused again and the frames took the world roll back 12 deg in 0.3 s.
+        # The deferred rolls are carried to the road under the wheels by the roll the gyros
+        # turned since their capture (RollAhead), which the glitch spoilt: dropped.
+        self._reset(((S.YAW_REL, self.ekf.x[S.YAW_REL], self.options.noise.init_angle_rad),))
+        self._vision_initialized = False
+        self._drop_pending(lambda p: isinstance(p, RollAhead))
+        self._last_vision_t = -math.inf
+        if not s.gravity_reacquired:
+            s.gravity_reacquired = True
+            self.counts["gravity_reacquired"] += 1
 
     def _reset(self, states) -> None:
         """Give states ``(index, value, sigma)`` new values, uncorrelated with the rest.
@@ -810,14 +893,16 @@ class FusionStream:
         ekf = self.ekf
         return (self._vision_initialized, self._lane_fit, self._last_vision_t, self._roll_hole_until, self._road_rate,
                 self._rejected_in_row, self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
-                ekf._bank_rate_scheduled, float(ekf._q_scheduled[S.BANK_RATE]), self._map_from)
+                ekf._bank_rate_scheduled, float(ekf._q_scheduled[S.BANK_RATE]), self._map_from,
+                self._gravity_refused_since)
 
     def _restore(self, state: tuple) -> None:
         ekf = self.ekf
         (self._vision_initialized, self._lane_fit, self._last_vision_t, self._roll_hole_until, self._road_rate,
          self._rejected_in_row,
          self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
-         ekf._bank_rate_scheduled, ekf._q_scheduled[S.BANK_RATE], self._map_from) = state
+         ekf._bank_rate_scheduled, ekf._q_scheduled[S.BANK_RATE], self._map_from,
+         self._gravity_refused_since) = state
 
     def _apply_late(self, item: VisionMeasurement) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it

@@ -55,6 +55,13 @@ class FusionOptions:
     #: covariance is reset to the initial one, so that a filter that drifted while the lanes
     #: were lost cannot lock itself out.
     reacquire_after_rejections: int = 10
+    #: After the gravity reference has been refused by the gate for this long (every update in
+    #: a row), the world roll and pitch are taken again from the accelerometer (the bank and
+    #: grade moved with them, so that the angles relative to the road stay), s: a gyro glitch
+    #: (a zeroed CAN frame reads -164 deg/s) that turned the attitude 16 deg in 0.1 s had every
+    #: later update refused and the bank 20 deg off with a sigma of 0.3 (a review). On the
+    #: benchmark's drives the longest run of refusals is one update.
+    gravity_reacquire_after_s: float = 1.0
     #: Apply the vision roll when the vehicle reaches the road it was measured on
     #: (:class:`fusion.ekf.RollAhead`) instead of modelling the bank ahead with the bank rate.
     defer_roll: bool = True
@@ -140,6 +147,8 @@ def fusion_options_from_table(table: dict | None, source: str = "config") -> tup
         history_s=t.get("history_s", "float", d.history_s, min=0.0, max=60.0),
         lane_fit_hold_s=t.get("lane_fit_hold_s", "float", d.lane_fit_hold_s, min=0.0, max=10.0),
         reacquire_after_rejections=t.get("reacquire_after_rejections", "int", d.reacquire_after_rejections, min=1),
+        gravity_reacquire_after_s=t.get("gravity_reacquire_after_s", "float", d.gravity_reacquire_after_s,
+                                        min=0.01, max=600.0),
         defer_roll=t.get("defer_roll", "bool", d.defer_roll),
         bank_rate_map=t.get("bank_rate_map", "bool", d.bank_rate_map),
         max_imu_gap_s=t.get("max_imu_gap_s", "float", d.max_imu_gap_s, min=1e-3, max=60.0),

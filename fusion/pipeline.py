@@ -23,7 +23,7 @@ from vision.video import SAG_COLUMNS, TWIST_RESPONSE_COLUMNS, current_names
 
 from .drive import SPEED_SPAN_WARN_S
 from .ekf import GRAVITY_M_S2, S, relative_outputs
-from .engine import FusionStream
+from .engine import LEVELLING_FORCE_G, FusionStream
 from .errors import InputError
 from .options import FusionOptions
 from .smoother import rts_smooth
@@ -234,6 +234,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     refused = vision_refused_warning(counts["vision_rejected"], counts["vision_rejected"] + counts["vision_used"])
     if refused:
         warnings.append(refused)
+    warnings += imu_glitch_warnings(counts, options.gravity_reacquire_after_s)
     if counts["imu_gaps"]:
         warnings.append(f"the IMU samples have {counts['imu_gaps']} gap(s) longer than {options.max_imu_gap_s:g} s: "
                         "the filter started again after each, keeping the IMU biases")
@@ -260,7 +261,7 @@ def imu_setup_warnings(accel_m_s2: np.ndarray, speed_known: np.ndarray, gravity_
     g = GRAVITY_M_S2
     mag = float(np.median(np.linalg.norm(accel_m_s2, axis=1))) if len(accel_m_s2) else math.nan
     # a coordinated lean reads g / cos(lean): 1.74 g at 55 deg; a unit error is a factor of 9.81
-    if not 0.5 * g < mag < 2.0 * g:
+    if not LEVELLING_FORCE_G[0] * g < mag < LEVELLING_FORCE_G[1] * g:
         out.append(f"the accelerometer reads a median of {mag:.3g} m/s^2, not about {g:.2f}: check the unit of its "
                    "signals in the DBC or [can.units]; the gravity reference is wrong")
     elif float(np.median(accel_m_s2[:, 2])) < 0.5 * g:
@@ -273,6 +274,25 @@ def imu_setup_warnings(accel_m_s2: np.ndarray, speed_known: np.ndarray, gravity_
     elif attempted and gravity_refused > GRAVITY_REFUSED_WARN * attempted:
         out.append(f"{gravity_refused} of {attempted} gravity updates refused as outliers: the accelerometer "
                    "disagrees with the model (check [imu] axes and position_m, the accelerometer's units)")
+    return out
+
+
+def imu_glitch_warnings(counts: dict, reacquire_after_s: float) -> list[str]:
+    """Warnings for IMU samples the filter could not use as they came: a gravity reference
+    refused for ``reacquire_after_s`` in a row and taken again from the accelerometer
+    (``counts["gravity_reacquired"]``, :meth:`fusion.engine.FusionStream._reacquire_gravity`),
+    and samples whose specific force could not level the filter
+    (``counts["level_skipped"]``, :data:`fusion.engine.LEVELLING_FORCE_G`)."""
+    out = []
+    if counts.get("gravity_reacquired"):
+        out.append(f"the gravity reference was refused for {reacquire_after_s:g} s in a row {counts['gravity_reacquired']} "
+                   "time(s) and the world roll and pitch were taken again from the accelerometer: a glitch in the "
+                   "IMU's rates or forces (a zeroed CAN frame?); the estimates around it are off")
+    if counts.get("level_skipped"):
+        lo, hi = LEVELLING_FORCE_G
+        out.append(f"{counts['level_skipped']} IMU samples with a specific force outside {lo:g}-{hi:g} g could not "
+                   "level the filter (start, first wheel speed, re-acquired gravity reference): a zeroed or "
+                   "saturated accelerometer frame?")
     return out
 
 
