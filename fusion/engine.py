@@ -488,7 +488,8 @@ class FusionStream:
 
     def _tally(self, s: _ImuSample, speed_refused: bool, gravity_refused: bool) -> None:
         """Count sample ``s``'s refused updates once: a replay (late vision) replaces what its
-        first pass counted instead of adding to it."""
+        first pass counted instead of adding to it. And keep when the gravity updates attempted
+        began to be refused in a row (``_gravity_refused_since``: :meth:`_reacquire_gravity`)."""
         if self._speed_initialized and s.index % self.options.gravity_every == 0:    # attempted
             if not gravity_refused:
                 self._gravity_refused_since = math.nan
