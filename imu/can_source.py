@@ -579,7 +579,7 @@ class StreamDecoder:
                 channels.append(ChannelStats(
                     channel=p.channel, column=col_of[p.channel], ref=p.ref, unit=p.unit,
                     decoded=n_ok, invalid=sc.invalid.get(p.channel, 0),
-                    out_of_range=sc.out_of_range.get(p.channel, 0),
+                    out_of_range=sc.out_of_range.get(p.channel, 0), minimum=p.minimum, maximum=p.maximum,
                     rate_hz=_rate(clock.intervals(), clock.span_s()) if clock else math.nan,  # valid values per second
                 ))
         span = self._samples.span_s()
@@ -590,6 +590,7 @@ class StreamDecoder:
             clock=self.plan.sources[self._clock].name, sources=tuple(sources), channels=tuple(channels),
             unavailable=self.unavailable, unknown_ids=dict(self.unknown_ids),
             unmapped_frames=self.unmapped_frames, error_frames=self.error_frames,
+            range_check=self.mapping.range_check,
         )
 
 

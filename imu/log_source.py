@@ -880,7 +880,7 @@ def _summary(path, plan, mount, frames, stats_raw, per_msg, unaligned, unknown, 
             channels.append(ChannelStats(
                 channel=p.channel, column=col_of[p.channel], ref=p.ref, unit=p.unit,
                 decoded=int(np.count_nonzero(v)), invalid=int(np.count_nonzero(~v)),
-                out_of_range=int(oor[j]), rate_hz=rate_hz(fr.t_s[v]),
+                out_of_range=int(oor[j]), rate_hz=rate_hz(fr.t_s[v]), minimum=p.minimum, maximum=p.maximum,
             ))
     unk: dict[str, int] = {}
     for i, c in sorted(Counter(unknown).items()):   # python ints: a reader may give an ID no int64 holds
@@ -897,6 +897,7 @@ def _summary(path, plan, mount, frames, stats_raw, per_msg, unaligned, unknown, 
         unmapped_frames=unmapped_frames,
         error_frames=error_frames, bad_lines=state.bad_lines, reader_warnings=state.warnings,
         problems=tuple(state.problems), complete=state.complete, stop_reason=state.stop_reason,
+        range_check=mapping.range_check,
     )
 
 

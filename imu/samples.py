@@ -138,6 +138,9 @@ class ChannelStats:
     invalid: int
     out_of_range: int
     rate_hz: float
+    #: The DBC's ``[minimum|maximum]`` of the signal (None where it gives none), in ``unit``.
+    minimum: float | None = None
+    maximum: float | None = None
 
 
 #: A source that starts this long after the clock message, or stops this long before it, is
@@ -171,6 +174,7 @@ class Summary:
     problems: tuple[str, ...] = ()
     complete: bool = True
     stop_reason: str = ""             # why the read stopped early (one of ``problems``)
+    range_check: bool = True          # ``[can] range_check``: values outside the DBC range made invalid
 
     @property
     def decode_errors(self) -> int:
@@ -208,6 +212,21 @@ class Summary:
                 out.append(f"source {s.name} stops {early:.1f} s before {self.clock}")
         return out
 
+    def range_lines(self) -> list[str]:
+        """Channels with values outside their DBC ``[minimum|maximum]`` that ``range_check`` made
+        invalid, each with the count and the key that keeps them: a DBC with a wrong range (or a
+        signal declared float that is not) had dropped them with no word of the range (a review)."""
+        if not self.range_check:
+            return []
+        out = []
+        for c in self.channels:
+            if c.out_of_range:
+                rng = (f" [{c.minimum:g}|{c.maximum:g}] {c.unit}" if c.minimum is not None and c.maximum is not None
+                       else "")
+                out.append(f"{c.column} ({c.ref}): {c.out_of_range} of {c.decoded + c.invalid} values outside the "
+                           f"DBC's range{rng} were dropped as invalid ([can] range_check = false keeps them)")
+        return out
+
     def lines(self) -> list[str]:
         """Human-readable report, one item per line."""
         out = [f"log: {self.log}: {self.frames_read} frames read, {self.frames_mapped} of mapped messages"
@@ -234,6 +253,7 @@ class Summary:
         else:
             out.append("gaps: none")
         out += self.span_lines()
+        out += self.range_lines()
         if self.unknown_ids:
             top = sorted(self.unknown_ids.items(), key=lambda kv: -kv[1])
             shown = ", ".join(f"{k} ({v})" for k, v in top[:8])

@@ -1480,3 +1480,35 @@ def test_vision_command_says_frames_without_a_wheel_speed(tmp_path):
     assert 85 <= n <= 95, said                  # 3 s at 30 fps, give or take the speed's last age
     r = vifusion(*common, "--can", SAMPLE_DRIVE / "can.blf")
     assert r.returncode == 0 and "no wheel speed" not in r.stderr, r.stderr
+
+
+def test_values_outside_the_dbcs_range_are_said_with_the_key_that_keeps_them(copy, tmp_path):
+    """A DBC whose yaw-rate range is [0|5] deg/s (a typo'd range): the values outside it are
+    dropped, and the run says which channel lost how many to the range and the key that keeps
+    them; before, it said only "N IMU samples without a valid gyro ... skipped" (a review). The
+    count is the frames whose RateZ cantools decodes outside [0, 5]. A float declaration on the
+    16-bit RateX (SIG_VALTYPE_) puts every value outside the range: the "never seen" error now
+    says they came and were all out of range (it read as if no frame had arrived)."""
+    import can as pycan
+    import cantools
+
+    dbc = copy / "vifusion_imu.dbc"
+    text = dbc.read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith(" SG_ RateZ "))
+    dbc.write_text(text.replace(line, line[:line.index("[")] + "[0|5]" + line[line.index("]") + 1:], 1))
+    msg = cantools.database.load_file(dbc).get_message_by_frame_id(0x174)
+    outside = sum(not 0 <= msg.decode(bytes(m.data), decode_choices=False)["RateZ"] <= 5
+                  for m in pycan.LogReader(next(copy.glob("can.*"))) if m.arbitration_id == 0x174)
+    assert outside > 0
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    said = [w for w in r.stderr.splitlines() if "IMU_RATE.RateZ" in w]
+    assert len(said) == 1 and f"{outside} of " in said[0] and "outside the DBC's range [0|5] deg/s" in said[0] \
+        and "[can] range_check = false" in said[0], r.stderr
+    summary = json.loads((tmp_path / "out" / "report" / "summary.json").read_text())
+    assert any("IMU_RATE.RateZ" in w for w in summary["warnings"]), summary["warnings"]
+
+    dbc.write_text(text.replace("BO_ 290 ABS_SPEED:", "SIG_VALTYPE_ 372 RateX : 1;\nBO_ 290 ABS_SPEED:", 1))
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out2", "--quiet", "--no-report")
+    one_line_error(r, "never seen", "IMU_RATE.RateX", "of its values were outside the DBC's range",
+                   "[can] range_check = false")

@@ -685,3 +685,27 @@ def test_STOP_REASON_is_the_cause_not_the_first_problem(tmp_path, clean):
     assert not summary.complete and summary.bad_lines == 3
     assert "unreadable" in summary.problems[0]
     assert "no line end" in summary.stop_reason and summary.stop_reason in summary.problems
+
+
+def test_OUT_OF_RANGE_values_are_said_per_channel_with_the_key(tmp_path, clean):
+    """Values outside the DBC range that range_check drops are named per channel, with their
+    count, the range and the key that keeps them (the run and ``vifusion can`` print these lines;
+    a review found the range never mentioned); with range_check off nothing was dropped, nothing
+    said."""
+    _, _, msgs, _, _ = clean
+    bad, hits = list(msgs), 0
+    for i, m in enumerate(bad):
+        if m.arbitration_id == 0x174 and i % 7 == 0:
+            d = bytearray(m.data)
+            d[0:2] = b"\xff\xff"  # RateX raw 0xFFFF: 163.835 deg/s, outside [-163.84|163.83]
+            bad[i] = can.Message(timestamp=m.timestamp, arbitration_id=0x174, is_extended_id=False, data=d)
+            hits += 1
+    _, summary = read_log(_write(bad, tmp_path / "x.blf"), sim_mapping(), MOUNT_FRD)
+    lines = summary.range_lines()
+    assert len(lines) == 1 and lines[0].startswith("gyro_x_rad_s (IMU_RATE.RateX): ")
+    gx = summary.channels[0]
+    assert gx.out_of_range == hits and f"{hits} of {gx.decoded + gx.invalid} values outside" in lines[0]
+    assert "[-163.84|163.83] deg/s" in lines[0] and "[can] range_check = false keeps them" in lines[0]
+    assert lines[0] in summary.lines()
+    _, s2 = read_log(tmp_path / "x.blf", sim_mapping(range_check=False), MOUNT_FRD)
+    assert s2.range_lines() == []

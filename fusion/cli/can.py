@@ -78,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
     if not summary.complete:
         print(f"warning: {args.log}: reading stopped early; {out} holds the first {summary.samples} samples "
               f"and is marked complete=false", file=sys.stderr)
+    for line in summary.range_lines():
+        print(f"warning: {args.log}: {line}", file=sys.stderr)
     for col in never_seen(table):
         print(f"warning: {args.log}: {col} never seen (all NaN in {out.name})", file=sys.stderr)
     out.parent.mkdir(parents=True, exist_ok=True)

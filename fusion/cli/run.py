@@ -161,7 +161,7 @@ def _run(args: argparse.Namespace) -> int:
     if missing:
         channel = dict(zip(VALUE_COLUMNS, CHANNELS))[missing[0]]
         raise InputError(f"{files.can_log}: IMU channel {missing[0]} never seen (needed by the filter; "
-                         f"{mapped_as(mapping, channel)})")
+                         f"{mapped_as(mapping, channel)})" + _never_seen_why(summary, missing[0]))
     if truth is not None:
         check_truth_overlap(truth, imu["t_s"].to_numpy(), files.truth, files.can_log)
     has_pitch_rate = "gyro_y_rad_s" not in unavailable and "gyro_y_rad_s" not in never
@@ -293,11 +293,24 @@ def _can_problems(summary, log) -> list[str]:
             listed = ", ".join(f"{k.replace('_', ' ')} {n}" for k, n in counts.items())
             out.append(f"{log}: {s.name} ({s.frame_id}): {sum(counts.values())} frames not used ({listed}; "
                        "vifusion can lists them)")
+    out += [f"{log}: {line}" for line in summary.range_lines()]
     if summary.bad_lines:   # with the reader's first word on them (which line, what was wrong)
         first = next((p for p in summary.problems if "skipped" in p), "")
         out.append(f"{log}: {summary.bad_lines} unreadable {'records' if log.suffix.lower() == '.mf4' else 'lines'} "
                    f"skipped" + (f" ({first})" if first else ""))
     return out
+
+
+def _never_seen_why(summary, column: str) -> str:
+    """Why a mapped channel has no value: its frames came, but every value was outside the DBC's
+    range (``range_check``); said, as the frames were read (a review: "never seen" for 1201
+    frames that arrived)."""
+    for c in summary.channels:
+        if c.column == column and summary.range_check and c.out_of_range and not c.decoded:
+            rng = f" [{c.minimum:g}|{c.maximum:g}] {c.unit}" if c.minimum is not None and c.maximum is not None else ""
+            return (f": all {c.out_of_range} of its values were outside the DBC's range{rng} "
+                    "([can] range_check = false keeps them)")
+    return ""
 
 
 def _can_counts(can: dict) -> dict:
