@@ -176,6 +176,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     bad = ~np.all(np.isfinite(gyro), axis=1) | ~np.all(np.isfinite(accel), axis=1)
     if bad.any():
         warnings.append(f"{int(bad.sum())} IMU samples without a valid gyro or accelerometer value were skipped")
+        warnings += imu_span_warnings(t, np.column_stack([gyro, accel]), GYRO_COLS + ACCEL_COLS, ~bad)
     keep = ~bad
     t, gyro, accel, speed, fresh = t[keep], gyro[keep], accel[keep], speed[keep], fresh[keep]
     if len(t) < 2:
@@ -311,6 +312,38 @@ def speed_span_warnings(t_s: np.ndarray, speed_known: np.ndarray, fresh: np.ndar
     if t_s[-1] - last > SPEED_SPAN_WARN_S:
         out.append(f"no wheel speed in the last {t_s[-1] - last:.1f} s of the IMU samples: the filter carried the "
                    "last speed on (its acceleration state), and the gravity reference with it")
+    return out
+
+
+def imu_span_warnings(t_s: np.ndarray, values: np.ndarray, names: tuple[str, ...], keep: np.ndarray) -> list[str]:
+    """Gyro or accelerometer channels whose values start more than :data:`SPEED_SPAN_WARN_S`
+    after the IMU samples or stop that long before them (a log whose accelerometer message ends
+    at 3 s of 12): the samples without them are skipped, so the fused table starts or ends
+    there; it ended at 3 s with only a count of skipped samples said (a review). Channels that
+    start or stop together are named in one warning."""
+    out: list[str] = []
+    if not len(t_s) or not np.any(keep):
+        return out
+    fused_first, fused_last = t_s[np.argmax(keep)], t_s[len(keep) - 1 - np.argmax(keep[::-1])]
+    late: dict[str, list[str]] = {}
+    early: dict[str, list[str]] = {}
+    for j, name in enumerate(names):
+        ok = np.isfinite(values[:, j])
+        if not ok.any():
+            continue                    # never seen: the caller's error
+        first, last = t_s[np.argmax(ok)], t_s[len(ok) - 1 - np.argmax(ok[::-1])]
+        if first - t_s[0] > SPEED_SPAN_WARN_S:
+            late.setdefault(f"{first - t_s[0]:.1f}", []).append(name)
+        if t_s[-1] - last > SPEED_SPAN_WARN_S:
+            early.setdefault(f"{t_s[-1] - last:.1f}", []).append(name)
+    for span, cols in late.items():
+        out.append(f"no {', '.join(cols)} value for the first {span} s of the IMU samples (the channel"
+                   f"{'s' if len(cols) > 1 else ''} started late): those samples were skipped and the fused table "
+                   f"starts {fused_first - t_s[0]:.1f} s after the IMU samples do")
+    for span, cols in early.items():
+        out.append(f"no {', '.join(cols)} value in the last {span} s of the IMU samples (the channel"
+                   f"{'s' if len(cols) > 1 else ''} stopped early): those samples were skipped and the fused table "
+                   f"ends {t_s[-1] - fused_last:.1f} s before the IMU samples do")
     return out
 
 

@@ -1512,3 +1512,39 @@ def test_values_outside_the_dbcs_range_are_said_with_the_key_that_keeps_them(cop
     r = vifusion("run", "--drive", copy, "--out", tmp_path / "out2", "--quiet", "--no-report")
     one_line_error(r, "never seen", "IMU_RATE.RateX", "of its values were outside the DBC's range",
                    "[can] range_check = false")
+
+
+@pytest.mark.parametrize("cut, words", [
+    ("after", "value in the last 1.2 s of the IMU samples (the channels stopped early)"),
+    ("before", "value for the first 1.2 s of the IMU samples (the channels started late)"),
+])
+def test_an_accelerometer_message_that_stops_early_or_starts_late_is_said(copy, tmp_path, cut, words):
+    """The 2-s drive's accelerometer message (IMU_ACC) cut off after 0.8 s, or missing for its
+    first 1.2 s: the samples without it cannot be fused, so fused.csv ends (starts) there. The
+    run said only "N IMU samples ... skipped" and its fused.csv looked like the drive's (a review
+    on a 12-s log cut at 3 s); now it names the channels, how long they were missing and where
+    the fused table ends. The fused table's span is the accelerometer's, to one 10-ms sample."""
+    import can as pycan
+
+    log = next(copy.glob("can.*"))
+    msgs = list(pycan.LogReader(log))
+    t0, t1 = msgs[0].timestamp, msgs[-1].timestamp
+    log.unlink()
+    acc = []
+    with pycan.Logger(copy / "can.blf") as w:
+        for m in msgs:
+            if m.arbitration_id == 0x178 and ((m.timestamp > t0 + 0.8) if cut == "after" else (m.timestamp < t0 + 1.2)):
+                continue
+            acc += [m.timestamp] if m.arbitration_id == 0x178 else []
+            w.on_message_received(m)
+    r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--quiet", "--no-report")
+    assert r.returncode == 0, r.stderr
+    said = [w for w in r.stderr.splitlines() if words in w]
+    assert len(said) == 1 and "accel_x_m_s2, accel_y_m_s2, accel_z_m_s2" in said[0], r.stderr
+    f = pd.read_csv(tmp_path / "out" / "fused.csv")
+    if cut == "after":
+        assert "the fused table ends 1.2 s before" in said[0] and t1 - acc[-1] > 1.15
+        assert abs(f["t_s"].iloc[-1] - acc[-1]) < 0.011
+    else:
+        assert "the fused table starts 1.2 s after" in said[0] and acc[0] - t0 > 1.15
+        assert abs(f["t_s"].iloc[0] - acc[0]) < 0.011
