@@ -111,6 +111,20 @@ _SYNTAX = re.compile(r"line (\d+), column (\d+): \"(.*?)\"\"?$", re.S)
 _UNUSED_VAL = re.compile(r"VAL_ (\d+) (\w+)")
 
 
+def _text_encoding(path: Path) -> str | None:
+    """The encoding of a DBC or SYM file: UTF-8 (a BOM allowed) when its bytes are valid UTF-8,
+    else cp1252, the encoding of Vector's tools and cantools' default for these formats; None
+    (cantools' default) for other formats. cantools alone reads a DBC as cp1252, and a UTF-8
+    unit "°/s" came out "Â°/s", an unknown unit (a review)."""
+    if path.suffix.lower() not in (".dbc", ".sym"):
+        return None
+    try:
+        path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        return "cp1252"
+    return "utf-8-sig"
+
+
 def load_dbc(path: str | Path) -> Any:
     """Load a DBC (or any database format cantools reads) with clear one-line errors.
 
@@ -143,8 +157,9 @@ def load_dbc(path: str | Path) -> Any:
     level = log.level
     log.setLevel(logging.ERROR)   # its warnings (e.g. two messages with one ID) are ours to word: resolve()
     try:
+        encoding = _text_encoding(path)
         try:
-            return cantools.database.load_file(path, strict=False)
+            return cantools.database.load_file(path, encoding=encoding, strict=False)
         except cantools.database.UnsupportedDatabaseFormatError as e:
             stale = _UNUSED_VAL.findall(" ".join(str(e).split()))
             if not stale or path.suffix.lower() != ".dbc":
@@ -153,7 +168,7 @@ def load_dbc(path: str | Path) -> Any:
             # cantools refuses the whole file even with strict=False; they describe nothing
             # that is decoded, so they are dropped (a review: such a file was refused, and the
             # error hid the mapped signal's own absence)
-            text = path.read_text(encoding="cp1252")
+            text = path.read_text(encoding=encoding or "utf-8")
             for frame_id, signal in stale:
                 text = re.sub(rf"(?m)^[ \t]*VAL_[ \t]+{frame_id}[ \t]+{re.escape(signal)}[ \t][^;]*;[ \t]*\r?\n?",
                               "", text)

@@ -55,7 +55,10 @@ _add("speed", 0.44704, "mph", "mi/h", "miles/h", "mile/h", "mi/hr")  # 1 mile = 
 def normalize_unit(unit: str) -> str:
     """Lower-case, spaces removed, common spellings folded (``"°/sec"`` -> ``"deg/s"``)."""
     u = unit.strip().lower().replace(" ", "").replace("\u00b7", "*")
-    u = u.replace("\u00b2", "^2").replace("**", "^").replace("\u00b0", "deg").replace("\u2212", "-")
+    u = u.replace("\u00b2", "^2").replace("**", "^").replace("\u00b0", "deg")
+    # the degree sign's look-alikes: the masculine ordinal (a Spanish or Italian keyboard's key)
+    # and the ring above
+    u = u.replace("\u00ba", "deg").replace("\u02da", "deg").replace("\u2212", "-")
     u = re.sub(r"(?<![a-z])(degrees|degree)(?![a-z])", "deg", u)
     u = re.sub(r"(?<![a-z])(radians|radian)(?![a-z])", "rad", u)
     u = re.sub(r"/(secs|sec|seconds|second)$", "/s", u)

@@ -709,3 +709,22 @@ def test_OUT_OF_RANGE_values_are_said_per_channel_with_the_key(tmp_path, clean):
     assert lines[0] in summary.lines()
     _, s2 = read_log(tmp_path / "x.blf", sim_mapping(range_check=False), MOUNT_FRD)
     assert s2.range_lines() == []
+
+
+@pytest.mark.parametrize("encoding", ["utf-8", "utf-8-sig", "cp1252"])
+def test_DBC_ENCODING_a_degree_sign_in_utf8_or_cp1252(tmp_path, clean, encoding):
+    """The gyro unit written "°/s" and a comment with an umlaut, the file saved as UTF-8 (with or
+    without a BOM) or as cp1252 (Vector's tools): each decodes as the "deg/s" original. cantools
+    reads a DBC as cp1252, and the UTF-8 file's unit came out "Â°/s", an unknown unit, exit 2
+    (a review)."""
+    from drivesim.canlog import DBC_PATH, signal_map
+
+    _, _, msgs, ref, _ = clean
+    text = DBC_PATH.read_text().replace('"deg/s"', '"°/s"')
+    text = text.replace("CM_ ", 'CM_ "Drehraten über CAN, in °/s";\nCM_ ', 1)
+    dbc = tmp_path / "imu.dbc"
+    dbc.write_bytes(text.encode(encoding))
+    table, summary = read_log(_write(msgs, tmp_path / "x.blf"), CanMapping(dbc, signal_map(True)), MOUNT_FRD)
+    assert {c.unit for c in summary.channels if c.channel.startswith("gyro")} == {"°/s"}
+    for col in ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s"):
+        np.testing.assert_array_equal(table[col].to_numpy(), ref[col].to_numpy())

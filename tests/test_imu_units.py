@@ -11,7 +11,9 @@ from imu.units import STANDARD_GRAVITY_M_S2, normalize_unit, quantity_of
 
 
 @pytest.mark.parametrize("unit, channel, factor", [
-    ("deg/s", "gyro_x", math.pi / 180), ("°/s", "gyro_x", math.pi / 180), ("Deg/Sec", "gyro_y", math.pi / 180),
+    ("deg/s", "gyro_x", math.pi / 180), ("°/s", "gyro_x", math.pi / 180), ("° / s", "gyro_x", math.pi / 180),
+    # the degree sign's look-alikes: the masculine ordinal and the ring above
+    ("º/s", "gyro_x", math.pi / 180), ("˚/s", "gyro_z", math.pi / 180), ("Deg/Sec", "gyro_y", math.pi / 180),
     ("dps", "gyro_z", math.pi / 180), ("degrees/second", "gyro_z", math.pi / 180),
     ("rad/s", "gyro_z", 1.0), ("rad/sec", "gyro_z", 1.0), ("mrad/s", "gyro_x", 1e-3),
     ("m/s^2", "accel_x", 1.0), ("m/s²", "accel_x", 1.0), ("m/s2", "accel_y", 1.0), ("m/s/s", "accel_z", 1.0),
