@@ -111,6 +111,12 @@ _SYNTAX = re.compile(r"line (\d+), column (\d+): \"(.*?)\"\"?$", re.S)
 _UNUSED_VAL = re.compile(r"VAL_ (\d+) (\w+)")
 
 
+def _printable(text: str) -> str:
+    """``text`` with each character that is not printable as its Python escape (``\\x00``): a
+    binary file's excerpt in an error had put NUL and control bytes on the terminal (a review)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def _text_encoding(path: Path) -> str | None:
     """The encoding of a DBC or SYM file: UTF-8 (a BOM allowed) when its bytes are valid UTF-8,
     else cp1252, the encoding of Vector's tools and cantools' default for these formats; None
@@ -178,15 +184,16 @@ def load_dbc(path: str | Path) -> Any:
         m = _SYNTAX.search(text)
         if m:
             line, col = int(m.group(1)), int(m.group(2))
-            near = m.group(3).replace(">>!<<", "")[:60]
+            near = _printable(m.group(3).replace(">>!<<", "")[:60])
             hint = (f"; the statement before it (line {line - 1}) may lack its ';'"
                     if col == 1 and line > 1 else "")
             raise DecodeError(f"{path}:{line}: DBC syntax error at column {col} near '{near}'{hint}") from None
-        raise DecodeError(f"{path}: not a DBC cantools can read: {text[:200]}") from None
+        raise DecodeError(f"{path}: not a DBC cantools can read: {_printable(text[:200])}") from None
     except (OSError, UnicodeDecodeError) as e:
         raise DecodeError(f"{path}: cannot read DBC: {e}") from None
     except Exception as e:  # noqa: BLE001 - cantools' parsers raise many types on garbage input
-        raise DecodeError(f"{path}: cannot parse DBC: {type(e).__name__}: {' '.join(str(e).split())[:200]}") from None
+        raise DecodeError(f"{path}: cannot parse DBC: {type(e).__name__}: "
+                          f"{_printable(' '.join(str(e).split())[:200])}") from None
     finally:
         log.setLevel(level)
 

@@ -149,3 +149,15 @@ def test_a_channel_never_sent_is_a_warning(tmp_path, drive, capsys):
     assert main(["can", str(log), "--config", str(cfg), "--out", str(out), "--quiet"]) == 0
     assert "accel_y_m_s2 never seen" in capsys.readouterr().err
     assert pd.read_csv(out)["accel_y_m_s2"].isna().all()
+
+
+def test_a_binary_dbc_is_one_printable_line(tmp_path, drive, capsys):
+    """A DBC that is binary garbage: the one-line error quotes the bytes near the syntax error
+    as escapes, not as raw NUL and control bytes on the user's terminal (a review)."""
+    _, _, log = drive
+    garbage = tmp_path / "garbage.dbc"
+    garbage.write_bytes(bytes(range(256)) * 4)
+    msg = _run_error(["can", str(log), "--config", str(_config(tmp_path)), "--out", str(tmp_path / "imu.csv"),
+                      "--dbc", str(garbage), "--quiet"], capsys)
+    assert "garbage.dbc:1: DBC syntax error at column 1 near '\\x00\\x01\\x02" in msg, msg
+    assert msg.isprintable(), repr(msg)
