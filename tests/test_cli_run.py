@@ -606,16 +606,26 @@ def test_a_table_given_as_a_value_is_a_config_error(tmp_path):
         load_config(p)
 
 
-def test_a_camera_config_that_does_not_fit_the_video_is_a_warning(copy, tmp_path):
-    """A config for another camera size: no frame gives lanes; the run goes on on the IMU and
-    says so in the summary (a review found it silent)."""
+def test_a_camera_config_that_does_not_fit_the_video_is_one_line(copy, tmp_path):
+    """A config for another camera size: no frame of the video can give lanes. It was a
+    warning ("vision valid on 0 of 30 frames") after the whole video, with outputs that looked
+    complete (a review); a video has one size, known from its first frame, so it is now an error
+    before any frame is estimated, naming both sizes and the keys to set, from `vifusion vision`
+    alike, and nothing is written."""
     cfg = copy / "config.toml"
     text = cfg.read_text()
     w = next(line for line in text.splitlines() if line.startswith("width ="))
     cfg.write_text(text.replace(w, "width = 1280", 1))
+    h = next(line for line in text.splitlines() if line.startswith("height =")).split("=")[1].strip()
     r = vifusion("run", "--drive", copy, "--out", tmp_path / "out", "--quiet", "--no-report")
-    assert r.returncode == 0, r.stderr
-    assert "warning: vision valid on 0 of" in r.stdout + r.stderr, r.stdout + r.stderr
+    words = ("video.mp4: the video's frames are 320x180", f"[camera] width x height is 1280x{h}",
+             "set [camera] width = 320, height = 180")
+    one_line_error(r, *words)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
+    r = vifusion("vision", "--video", copy / "video.mp4", "--frames", copy / "frames.csv", "--config", cfg,
+                 "--out", tmp_path / "v.csv", "--quiet")
+    one_line_error(r, *words)
+    assert not (tmp_path / "v.csv").exists()
 
 
 def test_bad_arguments_and_an_unreadable_video_are_one_line(copy, tmp_path):

@@ -1,5 +1,6 @@
 """``vifusion vision`` and the frame sources: files in, vision.csv out, one-line errors."""
 
+import shutil
 import tomllib
 from pathlib import Path
 
@@ -334,8 +335,10 @@ def test_the_debug_horizon_stays_where_the_distortion_is_one_to_one():
 
 def test_what_the_vision_command_says_of_bad_input(drive, tmp_path, capsys):
     """Found by a review, each said now: a camera whose size is not the video's gave exit 0 and
-    a table of invalid frames with the reason only in its rows (now a warning with it, as
-    `vifusion run` gives); a frames.csv none of whose frames is in the video wrote an empty
+    a table of invalid frames with the reason only in its rows (then a warning with it, as
+    `vifusion run` gives; now, as no frame can be of the camera's size, a one-line error before
+    any frame is estimated, nothing written; a folder with some pictures of another size goes
+    on, each of those refused with the reason in its row); a frames.csv none of whose frames is in the video wrote an empty
     table (now an error); a video cut short was read as whole when it came without frames.csv
     (now a warning: the frames its container announces that could not be read); an output under a
     file was said after the whole video, a debug video left behind (now before any work); a
@@ -345,9 +348,22 @@ def test_what_the_vision_command_says_of_bad_input(drive, tmp_path, capsys):
     wide = tmp_path / "wide.toml"
     wide.write_text(cfg.replace("width = 640", "width = 1280"))
     out = tmp_path / "v.csv"
-    assert main(["vision", "--video", str(root / "frames"), "--config", str(wide), "--out", str(out), "--quiet"]) == 0
-    err = capsys.readouterr().err
-    assert "warning: vision valid on 0 of 5 frames (mostly: image is 640x360, the camera is 1280x360" in err, err
+    assert main(["vision", "--video", str(root / "frames"), "--config", str(wide), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"error: {root / 'frames'}: the pictures are 640x360, but [camera] width x height is 1280x360: "
+                   "set [camera] width = 640, height = 360 and the intrinsics (fx, fy, cx, cy) in pixels of that "
+                   "size, or give this camera's config"), err
+    assert not out.exists()
+    mixed = tmp_path / "mixed"
+    shutil.copytree(root / "frames", mixed)
+    small = mixed / "0002.png"
+    cv2.imwrite(str(small), cv2.resize(cv2.imread(str(small)), (320, 180)))
+    assert main(["vision", "--video", str(mixed), "--frames", str(root / "frames.csv"), "--config",
+                 str(root / "config.toml"), "--out", str(out), "--quiet"]) == 0
+    capsys.readouterr()
+    rows = pd.read_csv(out)
+    assert rows.loc[rows["frame"] == 2, "reason"].item() == "image is 320x180, the camera is 640x360"
+    assert rows.loc[rows["frame"] != 2, "valid"].all()
 
     beyond = tmp_path / "beyond.csv"
     pd.DataFrame({"frame": [100, 101], "t_s": [1.0, 1.1]}).to_csv(beyond, index=False)

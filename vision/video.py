@@ -178,6 +178,52 @@ def count_frames(path: str | os.PathLike) -> int:
     return n
 
 
+def check_frame_size(src: FrameSource, camera: Camera) -> None:
+    """:class:`VisionError` when no frame of ``src`` can have the camera's size: a video whose
+    first frame is another size (a video has one), a folder none of whose pictures is. Every
+    frame had been estimated and refused ("image is 1280x720, the camera is 640x360") and the
+    run ended with exit 0 and outputs that looked complete (a review). A folder with some
+    pictures of the camera's size goes on: the others are refused frame by frame, each with
+    that reason in its row."""
+    size = (camera.width, camera.height)
+    if src.files is not None:
+        sizes = _picture_sizes([f for f in src.files if f is not None])
+        if not sizes or size in sizes:
+            return                   # (unreadable pictures are said where they are read)
+        w, h = sizes[0]
+        what = (f"the pictures are {w}x{h}" if len(set(sizes)) == 1 else
+                f"no picture is {size[0]}x{size[1]} (the first is {w}x{h}, {len(set(sizes))} sizes)")
+    else:
+        first = next(_frames_from(src, 0, luma=True), None)
+        if first is None:
+            return                   # nothing decodes: said where the frames are read
+        h, w = first[1].shape[:2]
+        if (w, h) == size:
+            return
+        what = f"the video's frames are {w}x{h}"
+    raise VisionError(f"{src.path}: {what}, but [camera] width x height is {size[0]}x{size[1]}: set [camera] "
+                      f"width = {w}, height = {h} and the intrinsics (fx, fy, cx, cy) in pixels of that size, "
+                      "or give this camera's config")
+
+
+def _picture_sizes(files: list[Path]) -> list[tuple[int, int]]:
+    """The ``(width, height)`` of each readable picture of a folder, in order, from their
+    headers (Pillow, which matplotlib brings; none without it: then no picture is refused
+    before it is read)."""
+    try:
+        from PIL import Image
+    except ImportError:       # pragma: no cover
+        return []
+    sizes = []
+    for f in files:
+        try:
+            with Image.open(f) as im:
+                sizes.append(im.size)
+        except Exception:     # noqa: BLE001 - an unreadable picture is said when it is read
+            continue
+    return sizes
+
+
 #: The columns of ``vision.csv`` that are the estimate: empty (NaN) on a frame without a valid one.
 ESTIMATE_COLUMNS = (
     "roll_deg", "pitch_deg", "yaw_deg", "roll_sigma_deg", "pitch_sigma_deg", "yaw_sigma_deg",
@@ -280,6 +326,7 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         raise VisionError(f"workers must be at least 1, got {workers}")
     want = {int(f): float(t) for f, t in zip(frames["frame"], frames["t_s"])}
     src = FrameSource(video, want)
+    check_frame_size(src, camera)
     speeds = ({int(f): float(v) for f, v in zip(frames["frame"], frames["speed_m_s"])}
               if "speed_m_s" in frames else None)
     wanted = sorted(want)
