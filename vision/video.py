@@ -208,12 +208,9 @@ def check_frame_size(src: FrameSource, camera: Camera) -> None:
 
 def _picture_sizes(files: list[Path]) -> list[tuple[int, int]]:
     """The ``(width, height)`` of each readable picture of a folder, in order, from their
-    headers (Pillow, which matplotlib brings; none without it: then no picture is refused
-    before it is read)."""
-    try:
-        from PIL import Image
-    except ImportError:       # pragma: no cover
-        return []
+    headers (Pillow: a header, not the picture decoded)."""
+    from PIL import Image
+
     sizes = []
     for f in files:
         try:
