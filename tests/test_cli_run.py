@@ -1558,3 +1558,38 @@ def test_an_accelerometer_message_that_stops_early_or_starts_late_is_said(copy, 
     else:
         assert "the fused table starts 1.2 s after" in said[0] and acc[0] - t0 > 1.15
         assert abs(f["t_s"].iloc[0] - acc[0]) < 0.011
+
+
+def test_campaign_goes_on_after_a_drive_fails_with_a_bug(drive, tmp_path, monkeypatch, capsys):
+    """A drive whose run fails with an internal error (a bug, not bad input: the division by
+    zero a zeroed accelerometer frame caused, a review) ended the campaign with a traceback, the
+    drives after it never run and their rows 'not run' with no reason. Now the row says
+    'failed: internal error ...', the traceback is on stderr, the next drive runs from the last
+    good calibration, and the exit status is 1; with --debug the campaign stops at it."""
+    from fusion import cli
+    from fusion.cli import run as run_cmd
+
+    second, third = tmp_path / "second", tmp_path / "third"
+    shutil.copytree(drive, second)
+    shutil.copytree(drive, third)
+    started = run_cmd.run
+
+    def a_bug_in_the_second(args):
+        if args.drive == second:
+            raise ZeroDivisionError("division by zero")
+        return started(args)
+
+    monkeypatch.setattr(run_cmd, "run", a_bug_in_the_second)
+    out = tmp_path / "camp"
+    assert cli.main(["campaign", str(drive), str(second), str(third), "--out", str(out), "--quiet",
+                     "--no-report"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "ZeroDivisionError: division by zero" in err
+    assert err.strip().splitlines()[-1].startswith("error: a drive of the campaign failed with an internal error")
+    table = pd.read_csv(out / "campaign.csv")
+    assert table["status"].iloc[0] == "ok" and table["status"].iloc[2] == "ok", table["status"]
+    assert table["status"].iloc[1] == ("failed: internal error (a bug, the traceback on stderr): ZeroDivisionError: "
+                                       "division by zero")
+    assert not (out / "second").exists() and not (out / "second.partial").exists()
+    with pytest.raises(ZeroDivisionError):
+        cli.main(["campaign", str(drive), str(second), "--out", str(out), "--quiet", "--no-report", "--debug"])

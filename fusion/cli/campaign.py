@@ -10,7 +10,9 @@ its biases on (``calibration_carried`` in the table, a line on stderr). ``DIR/ca
 where its calibration came from, the fused bank's statistics, the RMSE against truth when the
 drive has one, and the biases it ended with. A drive that fails (missing files, bad config) is
 skipped with its one-line reason in the table and on stderr, and the next drive starts from
-the last good calibration; the exit status is 2 when no drive succeeded.
+the last good calibration; the exit status is 2 when no drive succeeded. A drive whose run
+fails with an internal error (a bug) is ``failed: internal error ...`` in the table, its
+traceback on stderr, and the campaign goes on; the exit status is then 1 (``--debug`` stops at it).
 
 A campaign into a folder an earlier campaign wrote replaces it: the old table and the old output
 folders of this campaign's drives are removed before the first drive (a folder holding anything
@@ -32,6 +34,7 @@ import os
 import shutil
 import sys
 import time
+import traceback
 from pathlib import Path
 
 from . import workers_arg, write_tables
@@ -122,6 +125,9 @@ def run(args: argparse.Namespace) -> int:
     table = _table(rows, args.drives, "not run")
     ok = int((table["status"] == "ok").sum())
     print(f"wrote {args.out}/campaign.csv and campaign.parquet: {ok} of {len(table)} drives done")
+    if table["status"].str.startswith("failed: ").any():
+        print("error: a drive of the campaign failed with an internal error (its row and traceback)", file=sys.stderr)
+        return 1
     if ok == 0:
         print("error: no drive of the campaign could be run", file=sys.stderr)
         return 2
@@ -206,7 +212,16 @@ def _one_drive(args: argparse.Namespace, drive: Path, name: str, calibration, ro
         if interrupt_seen():   # Ctrl-C or SIGTERM that surfaced as an error (numba's SystemError
             raise KeyboardInterrupt from None   # too): the campaign ends, no drive skipped
         if not isinstance(e, USER_ERRORS):
-            raise
+            if args.debug:
+                raise
+            # A bug, not the drive's fault: said with its traceback, and the campaign goes on
+            # (a division by zero in one drive's filter ended a campaign, the drives after it
+            # never run: a review); the exit status says it (1)
+            traceback.print_exc(file=sys.stderr)
+            reason = f"internal error (a bug, the traceback on stderr): {type(e).__name__}: {_one_line(e)}"
+            print(f"error: {drive} failed: {reason}", file=sys.stderr)
+            rows.append({**row, "status": f"failed: {reason}"})
+            return calibration
         reason = _one_line(e)
         print(f"warning: {drive} skipped: {reason}", file=sys.stderr)
         rows.append({**row, "status": f"skipped: {reason}"})
