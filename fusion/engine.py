@@ -54,6 +54,14 @@ _PERIOD_SAMPLES = 20
 #: its lanes is within a quarter turn of the road in roll, pitch and yaw (a motorcycle's lean
 #: less the bank stays under 65 deg); beyond it the numbers are not angles in radians.
 MAX_VISION_ANGLE_RAD = math.pi / 2
+#: A road twist (the bank's change per metre) beyond this is a number, not a measurement, rad/m
+#: (1.15 deg/m): design guides keep a superelevation runoff's edge within 1/50-1/200 of the
+#: centre line's grade, about 0.1-0.3 deg/m on a lane; the benchmark's runoffs twist 0.1-0.23
+#: deg/m and the estimator's largest reading there is 0.44. One frame's twist of 0.03 rad/m took
+#: the sample drive's bank 3.7 deg off (6 sigma) through the bank-rate map, 1 rad/m 131 deg, with
+#: no word (a review): such a twist is dropped from its frame (the angles still count) and
+#: counted (``counts["twist_implausible"]``).
+MAX_ROAD_TWIST_RAD_M = 0.02
 
 #: A vision result dated further ahead of the newest IMU sample (and of history_s) is a clock
 #: mix-up, not a result the IMU has yet to reach, s.
@@ -207,7 +215,7 @@ class FusionStream:
         self.counts = dict(imu=0, imu_invalid=0, imu_gaps=0, vision_used=0, vision_rejected=0, vision_invalid=0,
                            vision_late=0, vision_too_old=0, vision_duplicate=0, vision_future=0, vision_implausible=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
                            roll_ahead_reacquired=0, twist_used=0, twist_rejected=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0,
-                           gravity_reacquired=0, level_skipped=0)
+                           gravity_reacquired=0, level_skipped=0, twist_implausible=0)
 
     # ---- inputs ----
 
@@ -306,10 +314,13 @@ class FusionStream:
             self.counts["vision_duplicate"] += 1   # the same frame twice: counted once
             return
         self._vision_times.append(t_s)
+        twist, twist_sigma = float(road_twist_rad_m[0]), float(road_twist_rad_m[1])
+        if math.isfinite(twist) and not (abs(twist) <= MAX_ROAD_TWIST_RAD_M and twist_sigma > 0.0):
+            self.counts["twist_implausible"] += 1
+            twist = twist_sigma = math.nan
         item = VisionMeasurement(t_s, angles, sig, float(curvature_1_m), float(curvature_sigma_1_m),
                                  float(lateral_offset_m), float(lookahead_m) if math.isfinite(lookahead_m) else 0.0, tw,
-                                 float(road_twist_rad_m[0]), float(road_twist_rad_m[1]),
-                                 tuple(map(float, twist_response)), tuple(map(float, vertical_curvature)),
+                                 twist, twist_sigma, tuple(map(float, twist_response)), tuple(map(float, vertical_curvature)),
                                  float(yaw_per_curvature_m))
         if not self._hist or item.t_s > self._hist[-1].t:
             bisect.insort_right(self._pending, item, key=_time_of)   # the IMU has not reached it yet

@@ -23,7 +23,7 @@ from vision.video import SAG_COLUMNS, TWIST_RESPONSE_COLUMNS, current_names
 
 from .drive import SPEED_SPAN_WARN_S
 from .ekf import GRAVITY_M_S2, S, relative_outputs
-from .engine import LEVELLING_FORCE_G, FusionStream
+from .engine import LEVELLING_FORCE_G, MAX_ROAD_TWIST_RAD_M, FusionStream
 from .errors import InputError
 from .options import FusionOptions
 from .smoother import rts_smooth
@@ -235,7 +235,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
     refused = vision_refused_warning(counts["vision_rejected"], counts["vision_rejected"] + counts["vision_used"])
     if refused:
         warnings.append(refused)
-    warnings += imu_glitch_warnings(counts, options.gravity_reacquire_after_s)
+    warnings += glitch_warnings(counts, options.gravity_reacquire_after_s)
     if counts["imu_gaps"]:
         warnings.append(f"the IMU samples have {counts['imu_gaps']} gap(s) longer than {options.max_imu_gap_s:g} s: "
                         "the filter started again after each, keeping the IMU biases")
@@ -278,12 +278,14 @@ def imu_setup_warnings(accel_m_s2: np.ndarray, speed_known: np.ndarray, gravity_
     return out
 
 
-def imu_glitch_warnings(counts: dict, reacquire_after_s: float) -> list[str]:
-    """Warnings for IMU samples the filter could not use as they came: a gravity reference
-    refused for ``reacquire_after_s`` in a row and taken again from the accelerometer
+def glitch_warnings(counts: dict, reacquire_after_s: float) -> list[str]:
+    """Warnings for inputs the filter could not use as they came: a gravity reference refused
+    for ``reacquire_after_s`` in a row and taken again from the accelerometer
     (``counts["gravity_reacquired"]``, :meth:`fusion.engine.FusionStream._reacquire_gravity`),
-    and samples whose specific force could not level the filter
-    (``counts["level_skipped"]``, :data:`fusion.engine.LEVELLING_FORCE_G`)."""
+    samples whose specific force could not level the filter (``counts["level_skipped"]``,
+    :data:`fusion.engine.LEVELLING_FORCE_G`), and road twists beyond any road's
+    (``counts["twist_implausible"]``, :data:`fusion.engine.MAX_ROAD_TWIST_RAD_M`). The offline
+    run's warnings and :class:`fusion.realtime.LiveFusion`'s."""
     out = []
     if counts.get("gravity_reacquired"):
         out.append(f"the gravity reference was refused for {reacquire_after_s:g} s in a row {counts['gravity_reacquired']} "
@@ -294,6 +296,10 @@ def imu_glitch_warnings(counts: dict, reacquire_after_s: float) -> list[str]:
         out.append(f"{counts['level_skipped']} IMU samples with a specific force outside {lo:g}-{hi:g} g could not "
                    "level the filter (start, first wheel speed, re-acquired gravity reference): a zeroed or "
                    "saturated accelerometer frame?")
+    if counts.get("twist_implausible"):
+        out.append(f"{counts['twist_implausible']} vision result(s) with a road twist beyond "
+                   f"{math.degrees(MAX_ROAD_TWIST_RAD_M):.2f} deg/m or a twist sigma of 0 or below: their twists were "
+                   "not used (their angles were)")
     return out
 
 

@@ -50,7 +50,7 @@ from .drive import last_speed
 from .engine import Estimate, FusionStream
 from .errors import ConfigError
 from .options import fusion_options_from_table
-from .pipeline import implausible_vision_warning, vision_refused_warning
+from .pipeline import glitch_warnings, implausible_vision_warning, vision_refused_warning
 
 __all__ = ["LiveFusion"]
 
@@ -76,7 +76,8 @@ MAX_GLITCH_FRAMES = 10
 #: (:data:`fusion.pipeline.VISION_REFUSED_WARN`; offline: the whole drive).
 VISION_REFUSED_SPAN_S = 10.0
 #: Lines in ``warnings`` up to which a gap in the IMU samples adds its own (a bus that drops out
-#: every second would otherwise grow the list for good; the count goes on).
+#: every second would otherwise grow the list for good; the count goes on), and each kind of
+#: frames refused in a row for their stamps (:meth:`LiveFusion._count_in_row`).
 _MAX_GAP_LINES = 20
 
 
@@ -131,6 +132,7 @@ class LiveFusion:
         #: accelerometer value are the stream's ``counts["imu_invalid"]``.)
         self.counts = dict(frames_out_of_order=0, frames_bad_time=0, frames_stamp_glitch=0, clock_restarts=0)
         self.warnings: list[str] = []
+        self._glitches_said: set[str] = set()    # the kinds of glitch_warnings said
         self._decoder_said = 0                 # the decoder's warnings copied into ours
         if self.settings.estimate_time_offset:
             self.warnings.append("[fusion] estimate_time_offset needs the whole drive and is not done live: "
@@ -152,6 +154,7 @@ class LiveFusion:
         # frames in a row refused for their stamps: not after the last one taken, too far ahead
         # of the bus, their results too old for the filter (CLOCK_BACK_WARN_FRAMES)
         self._in_row = dict(behind=0, ahead=0, old=0)
+        self._in_row_said = dict(behind=0, ahead=0, old=0)   # lines said per kind (_MAX_GAP_LINES)
 
     def warm_up(self, seconds: float = 1.0) -> float:
         """Load the compiled kernels before the drive: the bundled sample drive's first
@@ -223,6 +226,7 @@ class LiveFusion:
                 if s.fresh_speed and math.isfinite(s.speed_m_s):
                     self._speeds.append((s.t_s, s.speed_m_s))
             self.samples += n
+            self._say_glitches()
             if len(self.decoder.warnings) > self._decoder_said:   # the bus's own (frames out of order)
                 self.warnings += self.decoder.warnings[self._decoder_said:]
                 self._decoder_said = len(self.decoder.warnings)
@@ -369,6 +373,18 @@ class LiveFusion:
                 self._in_row["old"] = self._in_row["ahead"] = 0
             if not self._gate_said:
                 self._judge_gate()
+            self._say_glitches()
+
+    def _say_glitches(self) -> None:
+        """Say each kind of :func:`fusion.pipeline.glitch_warnings` once, when its first comes
+        (a re-acquired gravity reference, samples that could not level the filter, implausible
+        road twists: counted in ``stream.counts``, said only offline before, a review)."""
+        c = self.stream.counts
+        for key in ("gravity_reacquired", "level_skipped", "twist_implausible"):
+            if c[key] and key not in self._glitches_said:
+                self._glitches_said.add(key)
+                line = glitch_warnings({key: c[key]}, self.stream.options.gravity_reacquire_after_s)[0]
+                self.warnings.append(f"{line} (stream.counts['{key}'] counts them)")
 
     def _judge_gate(self) -> None:
         """Say once when the filter's gate refused more than its share of the results of the last
@@ -396,9 +412,12 @@ class LiveFusion:
             self._gate_said = True
 
     def _count_in_row(self, kind: str, what: str) -> None:
-        """One more frame in a row refused for its stamp; the warning once at the limit."""
+        """One more frame in a row refused for its stamp; the warning once at the limit, up to
+        :data:`_MAX_GAP_LINES` lines of each kind (a camera whose stamps flap between right and
+        ahead added one every 0.3 s for good, a review; the counts go on)."""
         self._in_row[kind] += 1
-        if self._in_row[kind] == CLOCK_BACK_WARN_FRAMES:
+        if self._in_row[kind] == CLOCK_BACK_WARN_FRAMES and self._in_row_said[kind] < _MAX_GAP_LINES:
+            self._in_row_said[kind] += 1
             self.warnings.append(f"{CLOCK_BACK_WARN_FRAMES} frames in a row {what}")
 
     def estimate(self) -> Estimate:
