@@ -818,17 +818,15 @@ class FusionStream:
             return          # the roll keeps the start's sigma; the gravity updates bring it in
         self._level(s, v)
 
-    def _level(self, s: _ImuSample, v: float, pitch: bool = False) -> float:
+    def _level(self, s: _ImuSample, v: float, pitch: bool = False) -> None:
         """The world roll (and with ``pitch`` the pitch) from sample ``s``'s specific force at
         speed ``v`` (:meth:`_level_roll`, :meth:`_level_pitch`), the bank (the grade) moved with
         it, so that the angles relative to the road stay, and their common direction reopened to
-        the starting sigma; a part of the last step's prediction for the smoother. Returns the
-        world roll's change, rad."""
+        the starting sigma; a part of the last step's prediction for the smoother."""
         ekf, n = self.ekf, self.options.noise
         e = np.zeros(DIM_X)
         e[[S.ROLL_W, S.BANK]] = 1.0
-        d_roll = self._level_roll(s, v) - ekf.x[S.ROLL_W]
-        shift, grow = d_roll * e, n.init_angle_rad**2 * np.outer(e, e)
+        shift, grow = (self._level_roll(s, v) - ekf.x[S.ROLL_W]) * e, n.init_angle_rad**2 * np.outer(e, e)
         if pitch:
             e = np.zeros(DIM_X)
             e[[S.PITCH_W, S.GRADE]] = 1.0
@@ -844,7 +842,6 @@ class FusionStream:
             st = self.steps[-1]
             st.x_prior, st.P_prior = st.x_prior.copy(), st.P_prior.copy()
             level(st.x_prior, st.P_prior)
-        return d_roll
 
     def _reacquire_gravity(self, s: _ImuSample) -> None:
         """Every gravity update refused for ``options.gravity_reacquire_after_s``: the world roll
