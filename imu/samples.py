@@ -142,6 +142,13 @@ class ChannelStats:
     minimum: float | None = None
     maximum: float | None = None
 
+    @property
+    def dbc_range(self) -> str:
+        """`` [minimum|maximum] unit`` as the messages quote it ("" where the DBC gives none)."""
+        if self.minimum is None or self.maximum is None:
+            return ""
+        return f" [{self.minimum:g}|{self.maximum:g}] {self.unit}"
+
 
 #: A source that starts this long after the clock message, or stops this long before it, is
 #: said in the summary (s).
@@ -221,10 +228,8 @@ class Summary:
         out = []
         for c in self.channels:
             if c.out_of_range:
-                rng = (f" [{c.minimum:g}|{c.maximum:g}] {c.unit}" if c.minimum is not None and c.maximum is not None
-                       else "")
                 out.append(f"{c.column} ({c.ref}): {c.out_of_range} of {c.decoded + c.invalid} values outside the "
-                           f"DBC's range{rng} were dropped as invalid ([can] range_check = false keeps them)")
+                           f"DBC's range{c.dbc_range} were dropped as invalid ([can] range_check = false keeps them)")
         return out
 
     def lines(self) -> list[str]:

@@ -307,8 +307,7 @@ def _never_seen_why(summary, column: str) -> str:
     frames that arrived)."""
     for c in summary.channels:
         if c.column == column and summary.range_check and c.out_of_range and not c.decoded:
-            rng = f" [{c.minimum:g}|{c.maximum:g}] {c.unit}" if c.minimum is not None and c.maximum is not None else ""
-            return (f": all {c.out_of_range} of its values were outside the DBC's range{rng} "
+            return (f": all {c.out_of_range} of its values were outside the DBC's range{c.dbc_range} "
                     "([can] range_check = false keeps them)")
     return ""
 
