@@ -187,8 +187,12 @@ def check_frame_size(src: FrameSource, camera: Camera) -> None:
     that reason in its row."""
     size = (camera.width, camera.height)
     if src.files is not None:
-        sizes = _picture_sizes([f for f in src.files if f is not None])
-        if not sizes or size in sizes:
+        sizes = []
+        for found in _picture_sizes(f for f in src.files if f is not None):
+            if found == size:
+                return               # one of the camera's size: the folder goes on
+            sizes.append(found)
+        if not sizes:
             return                   # (unreadable pictures are said where they are read)
         w, h = sizes[0]
         what = (f"the pictures are {w}x{h}" if len(set(sizes)) == 1 else
@@ -206,19 +210,19 @@ def check_frame_size(src: FrameSource, camera: Camera) -> None:
                       "or give this camera's config")
 
 
-def _picture_sizes(files: list[Path]) -> list[tuple[int, int]]:
+def _picture_sizes(files: Iterable[Path]) -> Iterator[tuple[int, int]]:
     """The ``(width, height)`` of each readable picture of a folder, in order, from their
-    headers (Pillow: a header, not the picture decoded)."""
+    headers (Pillow: a header, not the picture decoded), as they are asked for: a folder whose
+    first picture has the camera's size is not read through."""
     from PIL import Image
 
-    sizes = []
     for f in files:
         try:
             with Image.open(f) as im:
-                sizes.append(im.size)
+                size = im.size
         except Exception:     # noqa: BLE001 - an unreadable picture is said when it is read
             continue
-    return sizes
+        yield size
 
 
 #: The columns of ``vision.csv`` that are the estimate: empty (NaN) on a frame without a valid one.
