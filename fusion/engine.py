@@ -75,6 +75,18 @@ _ROLL_SIGMA_WITHOUT_SPEED_RAD = math.radians(25.0)
 #: update divided by zero (a review). Outside it the start is level with the roll's and pitch's
 #: sigma :data:`_ROLL_SIGMA_WITHOUT_SPEED_RAD`, and the gravity updates bring them in.
 LEVELLING_FORCE_G = (0.5, 2.0)
+#: A wheel speed refused ``reacquire_after_rejections`` times in a row is taken again (the speed
+#: state re-acquired) only if it lies within this of the speed the filter carried on with its
+#: acceleration state (which the accelerometer keeps through the gravity updates), m/s, plus
+#: :data:`SPEED_DRIFT_M_S2` per second since the last wheel speed taken. Without the bound a
+#: wheel-speed sensor stuck at 0 (a locked or lifted wheel, a dead sensor) or at 300 km/h was
+#: taken after 0.2 s: 6 s of 0 km/h at 79 km/h put the bank 13 deg off (42 sigma, a review).
+#: 2 m/s is 8 % of 25 m/s, beyond a tyre's slip and its rolling radius's change with lean.
+SPEED_REACQUIRE_M_S = 2.0
+#: How fast the carried speed may drift from the ground speed, m/s^2: 0.02 g, an accelerometer
+#: bias or a grade 1.2 deg off for the whole while. Measured: with the wheel speed dropped for 40
+#: s of the 60 s drive, the carried speed drifted 0.33 m/s at most (0.008 m/s^2).
+SPEED_DRIFT_M_S2 = 0.2
 
 
 def _all_finite(a: np.ndarray) -> bool:
@@ -149,7 +161,7 @@ class _ImuSample:
     applied: tuple = ()   # measurements applied in the interval ending here (for replays)
     r_scale: float = 1.0  # factor on the accelerometer noise variance (NoiseModel.accel_meas_rate_hz)
     state: tuple = ()     # the stream's own state after this sample (FusionStream._snapshot)
-    gravity_reacquired: bool = False   # the gravity reference re-acquired at it, as counted
+    counted: tuple = ()   # the kinds of counts[...] this sample added to (a replay adds none again)
 
 
 class FusionStream:
@@ -207,6 +219,7 @@ class FusionStream:
         self._rejected_in_row = 0
         self._speed_initialized = False
         self._speed_rejected_in_row = 0
+        self._speed_taken_t = -math.inf   # the last wheel speed the speed state took, s
         self._roll_rejected_in_row = 0
         self._gravity_refused_since = math.nan   # the first of the gravity updates refused in a row, s
         self._roll_prop = 0.0   # running sum of the roll (relative to level) the propagation turned, rad
@@ -215,7 +228,7 @@ class FusionStream:
         self.counts = dict(imu=0, imu_invalid=0, imu_gaps=0, vision_used=0, vision_rejected=0, vision_invalid=0,
                            vision_late=0, vision_too_old=0, vision_duplicate=0, vision_future=0, vision_implausible=0, vision_reacquired=0, roll_ahead_used=0, roll_ahead_rejected=0,
                            roll_ahead_reacquired=0, twist_used=0, twist_rejected=0, gravity_rejected=0, speed_rejected=0, speed_reacquired=0,
-                           gravity_reacquired=0, level_skipped=0, twist_implausible=0)
+                           speed_implausible=0, gravity_reacquired=0, level_skipped=0, twist_implausible=0)
 
     # ---- inputs ----
 
@@ -540,7 +553,10 @@ class FusionStream:
                 u, sample.speed if sample.speed_fresh else math.nan, sample.accel, sample.gyro, sample.gyro_dot,
                 gravity, sample.r_scale, sample.gyro_dot_dt)
             if sample.speed_fresh:
-                self._speed_rejected_in_row = 0 if ok_v else self._speed_rejected_in_row + 1
+                if ok_v:
+                    self._speed_rejected_in_row, self._speed_taken_t = 0, sample.t
+                else:
+                    self._speed_rejected_in_row += 1
             self._tally(sample, sample.speed_fresh and not ok_v, not ok_g)
         self._roll_prop += ekf.x_prior[S.ROLL_W] - roll0
         if self.record:
@@ -655,24 +671,40 @@ class FusionStream:
             self._patch_memo[due] = (since, newest, median)
         return median
 
-    def _speed_update(self, speed: float, s: _ImuSample | None = None) -> bool:
-        """Wheel speed; the first one (and one after a run of rejections) sets the state; the
-        first one after the start also the attitude relative to level (:meth:`_level_again`).
-        Whether it was refused."""
+    def _speed_update(self, speed: float, s: _ImuSample) -> bool:
+        """Sample ``s``'s wheel speed; the first one (and one after a run of rejections) sets
+        the state; the first one after the start also the attitude relative to level
+        (:meth:`_level_again`). Whether it was refused.
+
+        The re-acquisition after ``reacquire_after_rejections`` refusals in a row is for a speed
+        state that drifted; a wheel speed further from it than :data:`SPEED_REACQUIRE_M_S` plus
+        :data:`SPEED_DRIFT_M_S2` per second since the last one taken is the sensor's fault (no
+        acceleration the accelerometer felt explains it): refused and counted
+        (``counts["speed_implausible"]``), the speed carried on until the wheel agrees again."""
         ekf, n = self.ekf, self.options.noise
-        if not self._speed_initialized or self._speed_rejected_in_row >= self.options.reacquire_after_rejections:
-            first_after_start = not self._speed_initialized and bool(self._hist)
-            self._reset(((S.SPEED, speed, n.speed_meas_m_s), (S.ACCEL_X, 0.0, n.init_accel_m_s2)))
-            self.counts["speed_reacquired"] += self._speed_initialized
-            self._speed_initialized, self._speed_rejected_in_row = True, 0
-            if first_after_start and s is not None:
-                self._level_again(s, speed)
-            return False
-        if ekf.update_speed(speed):
-            self._speed_rejected_in_row = 0
-            return False
-        self._speed_rejected_in_row += 1
-        return True
+        if self._speed_initialized:
+            if ekf.update_speed(speed):
+                self._speed_rejected_in_row, self._speed_taken_t = 0, s.t
+                return False
+            if self._speed_rejected_in_row < self.options.reacquire_after_rejections:
+                self._speed_rejected_in_row += 1
+                return True
+            if abs(speed - ekf.x[S.SPEED]) > SPEED_REACQUIRE_M_S + SPEED_DRIFT_M_S2 * (s.t - self._speed_taken_t):
+                self._count_once(s, "speed_implausible")
+                return True
+            self._count_once(s, "speed_reacquired")
+        first_after_start = not self._speed_initialized and bool(self._hist)
+        self._reset(((S.SPEED, speed, n.speed_meas_m_s), (S.ACCEL_X, 0.0, n.init_accel_m_s2)))
+        self._speed_initialized, self._speed_rejected_in_row, self._speed_taken_t = True, 0, s.t
+        if first_after_start:
+            self._level_again(s, speed)
+        return False
+
+    def _count_once(self, s: _ImuSample, kind: str) -> None:
+        """Count ``kind`` at sample ``s`` once: a replay (late vision) passes it again."""
+        if kind not in s.counted:
+            s.counted += (kind,)
+            self.counts[kind] += 1
 
     def _vision_update(self, m: VisionMeasurement | RollAhead, first: bool = True) -> None:
         """Apply a vision result (``first``: not a replay of one applied before) or a deferred roll."""
@@ -866,9 +898,7 @@ class FusionStream:
         self._vision_initialized = False
         self._drop_pending(lambda p: isinstance(p, RollAhead))
         self._last_vision_t = -math.inf
-        if not s.gravity_reacquired:
-            s.gravity_reacquired = True
-            self.counts["gravity_reacquired"] += 1
+        self._count_once(s, "gravity_reacquired")
 
     def _reset(self, states) -> None:
         """Give states ``(index, value, sigma)`` new values, uncorrelated with the rest.
@@ -903,7 +933,7 @@ class FusionStream:
         return (self._vision_initialized, self._lane_fit, self._last_vision_t, self._roll_hole_until, self._road_rate,
                 self._rejected_in_row, self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
                 ekf._bank_rate_scheduled, float(ekf._q_scheduled[S.BANK_RATE]), self._map_from,
-                self._gravity_refused_since)
+                self._gravity_refused_since, self._speed_taken_t)
 
     def _restore(self, state: tuple) -> None:
         ekf = self.ekf
@@ -911,7 +941,7 @@ class FusionStream:
          self._rejected_in_row,
          self._speed_initialized, self._speed_rejected_in_row, self._roll_rejected_in_row,
          ekf._bank_rate_scheduled, ekf._q_scheduled[S.BANK_RATE], self._map_from,
-         self._gravity_refused_since) = state
+         self._gravity_refused_since, self._speed_taken_t) = state
 
     def _apply_late(self, item: VisionMeasurement) -> None:
         """A vision result at or before the newest IMU time: roll back to the sample before it

@@ -23,7 +23,7 @@ from vision.video import SAG_COLUMNS, TWIST_RESPONSE_COLUMNS, current_names
 
 from .drive import SPEED_SPAN_WARN_S
 from .ekf import GRAVITY_M_S2, S, relative_outputs
-from .engine import LEVELLING_FORCE_G, MAX_ROAD_TWIST_RAD_M, FusionStream
+from .engine import LEVELLING_FORCE_G, MAX_ROAD_TWIST_RAD_M, SPEED_DRIFT_M_S2, SPEED_REACQUIRE_M_S, FusionStream
 from .errors import InputError
 from .options import FusionOptions
 from .smoother import rts_smooth
@@ -283,7 +283,8 @@ def glitch_warnings(counts: dict, reacquire_after_s: float) -> list[str]:
     for ``reacquire_after_s`` in a row and taken again from the accelerometer
     (``counts["gravity_reacquired"]``, :meth:`fusion.engine.FusionStream._reacquire_gravity`),
     samples whose specific force could not level the filter (``counts["level_skipped"]``,
-    :data:`fusion.engine.LEVELLING_FORCE_G`), and road twists beyond any road's
+    :data:`fusion.engine.LEVELLING_FORCE_G`), wheel speeds refused as a sensor's fault
+    (``counts["speed_implausible"]``, :data:`fusion.engine.SPEED_REACQUIRE_M_S`), and road twists beyond any road's
     (``counts["twist_implausible"]``, :data:`fusion.engine.MAX_ROAD_TWIST_RAD_M`). The offline
     run's warnings and :class:`fusion.realtime.LiveFusion`'s."""
     out = []
@@ -296,6 +297,11 @@ def glitch_warnings(counts: dict, reacquire_after_s: float) -> list[str]:
         out.append(f"{counts['level_skipped']} IMU samples with a specific force outside {lo:g}-{hi:g} g could not "
                    "level the filter (start, first wheel speed, re-acquired gravity reference): a zeroed or "
                    "saturated accelerometer frame?")
+    if counts.get("speed_implausible"):
+        out.append(f"{counts['speed_implausible']} wheel speed(s) were refused as a sensor fault: more than "
+                   f"{SPEED_REACQUIRE_M_S:g} m/s, plus {SPEED_DRIFT_M_S2:g} m/s for each second since the last one taken, "
+                   "from the speed the accelerometer carried on, which no acceleration explains (a locked, lifted or "
+                   "spinning wheel, a sensor stuck at one value?); the filter carried its speed on instead")
     if counts.get("twist_implausible"):
         out.append(f"{counts['twist_implausible']} vision result(s) with a road twist beyond "
                    f"{math.degrees(MAX_ROAD_TWIST_RAD_M):.2f} deg/m or a twist sigma of 0 or below: their twists were "

@@ -377,10 +377,11 @@ class LiveFusion:
 
     def _say_glitches(self) -> None:
         """Say each kind of :func:`fusion.pipeline.glitch_warnings` once, when its first comes
-        (a re-acquired gravity reference, samples that could not level the filter, implausible
-        road twists: counted in ``stream.counts``, said only offline before, a review)."""
+        (a re-acquired gravity reference, samples that could not level the filter, a wheel speed
+        refused as a sensor's fault, implausible road twists: counted in ``stream.counts``, said
+        only offline before, a review)."""
         c = self.stream.counts
-        for key in ("gravity_reacquired", "level_skipped", "twist_implausible"):
+        for key in ("gravity_reacquired", "level_skipped", "speed_implausible", "twist_implausible"):
             if c[key] and key not in self._glitches_said:
                 self._glitches_said.add(key)
                 line = glitch_warnings({key: c[key]}, self.stream.options.gravity_reacquire_after_s)[0]
