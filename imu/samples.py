@@ -111,6 +111,9 @@ class SourceStats:
     other_channel: int = 0
     bad_timestamp: int = 0
     unaligned: int = 0
+    #: Times the live decoder moved the message to another bus channel (no ``[can] channel``:
+    #: the one it came on first fell silent while another carried it).
+    channel_relocked: int = 0
     gaps: tuple[Gap, ...] = ()
     #: Times of the first and last accepted frame (on the current bus clock, live), s.
     first_s: float = math.nan
@@ -246,8 +249,8 @@ class Summary:
             out.append(f"{col}: UNAVAILABLE (not mapped): NaN, fresh flag always False")
         for s in self.sources:
             skipped = {k: getattr(s, k) for k in ("wrong_length", "padded", "excess_length", "duplicates",
-                                                  "backwards", "remote", "other_channel", "bad_timestamp",
-                                                  "unaligned") if getattr(s, k)}
+                                                  "backwards", "remote", "other_channel", "channel_relocked",
+                                                  "bad_timestamp", "unaligned") if getattr(s, k)}
             extra = ", ".join(f"{k} {v}" for k, v in skipped.items()) or "nothing skipped"
             out.append(f"source {s.name} ({s.frame_id}): {s.frames} frames, {s.rate_hz:.1f} Hz, {extra}, "
                        f"{len(s.gaps)} gaps")
