@@ -240,6 +240,8 @@ class StreamDecoder:
         #: on the bus channel taken: what :class:`LiveSource`'s ``imu_timeout_s`` waits for.
         self.imu_frames = 0
         self.unknown_ids: dict[str, int] = {}
+        #: Frames of unknown IDs beyond the first :data:`MAX_UNKNOWN_IDS` (not kept by ID).
+        self.unknown_more_frames = 0
         self.unmapped_frames = 0
         self.error_frames = 0
         self.samples = 0
@@ -258,8 +260,7 @@ class StreamDecoder:
             elif aid in self.plan.known_ids:
                 self.unmapped_frames += 1
             else:
-                key = f"0x{aid:X}"
-                self.unknown_ids[key] = self.unknown_ids.get(key, 0) + 1
+                self._count_unknown(f"0x{aid:X}")
             return []
         self.frames_mapped += 1
         ref = self._msg[aid]
@@ -268,8 +269,7 @@ class StreamDecoder:
             self.error_frames += 1
             return []
         if bool(msg.is_extended_id) != ref.is_extended:
-            key = f"0x{aid:X}" + ("x" if msg.is_extended_id else " (standard)")
-            self.unknown_ids[key] = self.unknown_ids.get(key, 0) + 1
+            self._count_unknown(f"0x{aid:X}" + ("x" if msg.is_extended_id else " (standard)"))
             return []
         if self.mapping.channel is not None:
             if str(msg.channel) != str(self.mapping.channel):
@@ -312,6 +312,17 @@ class StreamDecoder:
             return self._accept(aid, idx, t, payload, received_s)      # the usual case
         self._gate.append((aid, idx, t, payload, received_s, prev))
         return self._pump()
+
+    def _count_unknown(self, key: str) -> None:
+        """One frame of an ID the DBC does not have: by ID for the first :data:`MAX_UNKNOWN_IDS`
+        IDs, in ``unknown_more_frames`` beyond."""
+        n = self.unknown_ids.get(key)
+        if n is not None:
+            self.unknown_ids[key] = n + 1
+        elif len(self.unknown_ids) < MAX_UNKNOWN_IDS:
+            self.unknown_ids[key] = 1
+        else:
+            self.unknown_more_frames += 1
 
     def _relock(self, aid: int, lock: _ChannelLock, msg: can.Message) -> bool:
         """Whether a frame of ``aid`` on a channel other than the one taken moves the ID to its
@@ -668,7 +679,7 @@ class StreamDecoder:
             duration_s=float(span) if self.samples else 0.0,
             sample_rate_hz=_rate(self._samples.intervals(), span),
             clock=self.plan.sources[self._clock].name, sources=tuple(sources), channels=tuple(channels),
-            unavailable=self.unavailable, unknown_ids=dict(self.unknown_ids),
+            unavailable=self.unavailable, unknown_ids=dict(self.unknown_ids), unknown_more_frames=self.unknown_more_frames,
             unmapped_frames=self.unmapped_frames, error_frames=self.error_frames,
             range_check=self.mapping.range_check,
         )

@@ -177,6 +177,8 @@ class Summary:
     channels: tuple[ChannelStats, ...]
     unavailable: tuple[str, ...]
     unknown_ids: dict[str, int] = field(default_factory=dict)
+    #: Frames of unknown IDs not counted by ID (the live decoder keeps the first 1000 IDs).
+    unknown_more_frames: int = 0
     unmapped_frames: int = 0
     error_frames: int = 0
     bad_lines: int = 0
@@ -265,7 +267,9 @@ class Summary:
         if self.unknown_ids:
             top = sorted(self.unknown_ids.items(), key=lambda kv: -kv[1])
             shown = ", ".join(f"{k} ({v})" for k, v in top[:8])
-            out.append(f"unknown IDs (not in the DBC): {len(top)}: {shown}{', ...' if len(top) > 8 else ''}")
+            more = (f"; and {self.unknown_more_frames} frames of further IDs (the first {len(top)} are counted by ID)"
+                    if self.unknown_more_frames else "")
+            out.append(f"unknown IDs (not in the DBC): {len(top)}: {shown}{', ...' if len(top) > 8 else ''}{more}")
         else:
             out.append("unknown IDs (not in the DBC): none")
         out.append(f"unmapped frames of DBC messages: {self.unmapped_frames}; error frames: {self.error_frames}")

@@ -789,3 +789,48 @@ def test_TWO_CHANNELS_CARRYING_ONE_ID_keep_the_first_and_say_so(clean):
     assert len(said) == 1 and "'can0', which is used" in said[0] and "[can] channel" in said[0], dec.warnings
     rate = next(s for s in dec.summary().sources if s.name == "IMU_RATE")
     assert rate.channel_relocked == 0 and rate.other_channel == 300
+
+
+def test_MANY_UNKNOWN_IDS_are_counted_in_bounded_memory(clean):
+    """200,000 frames of random extended IDs the DBC does not have (a J1939 network of many
+    source addresses, a noisy bus) among the drive's frames: ``unknown_ids`` kept one entry per
+    distinct ID (500,000 frames: 46 MB, a review). Now it keeps the first ``MAX_UNKNOWN_IDS``
+    and counts the frames of the rest in one number, which the summary prints; every frame is
+    counted once, and the samples are the clean log's. A normal bus's summary is unchanged."""
+    import random
+    import tracemalloc
+
+    from imu import StreamDecoder, samples_frame
+    from imu.can_source import MAX_UNKNOWN_IDS
+
+    _, _, msgs, ref, _ = clean
+    rnd = random.Random(0)
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    tracemalloc.start()
+    out = []
+    for i, m in enumerate(msgs):
+        out += dec.push(m)
+        for _ in range(200_000 // len(msgs) + 1):
+            dec.push(can.Message(timestamp=m.timestamp, arbitration_id=rnd.getrandbits(29),
+                                 is_extended_id=True, data=bytes(8)))
+    out += dec.flush()
+    grown = tracemalloc.get_traced_memory()[0]
+    tracemalloc.stop()
+    summary = dec.summary()
+    assert len(summary.unknown_ids) == MAX_UNKNOWN_IDS
+    n_random = len(msgs) * (200_000 // len(msgs) + 1)
+    plain = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    for m in msgs:
+        plain.push(m)
+    plain.flush()
+    normal = plain.summary()
+    assert sum(summary.unknown_ids.values()) + summary.unknown_more_frames \
+        == sum(normal.unknown_ids.values()) + n_random
+    # the first thousand IDs' entries and the decoder's own state: 0.1-0.2 MB here; one entry
+    # per ID had grown by 19 MB (a tenth of that would still be caught)
+    assert grown < 2_000_000, grown
+    said = next(line for line in summary.lines() if line.startswith("unknown IDs"))
+    assert f"and {summary.unknown_more_frames} frames of further IDs" in said, said
+    assert normal.unknown_more_frames == 0 and "further IDs" not in "\n".join(normal.lines())
+    got = samples_frame(out)
+    assert len(got) == len(ref) and np.array_equal(got["gyro_z_rad_s"].to_numpy(), ref["gyro_z_rad_s"].to_numpy())
