@@ -836,3 +836,31 @@ def test_a_camera_whose_stamps_flap_does_not_grow_the_warnings_for_good(sample_i
     said = [w for w in live.warnings if "frames in a row stamped too far ahead" in w]
     assert len(said) == _MAX_GAP_LINES
     assert live.stream.counts["vision_future"] == 40 * CLOCK_BACK_WARN_FRAMES
+
+
+def test_a_bus_gone_silent_is_said_as_the_bus_not_the_camera(sample_offline):
+    """The CAN bus silent from 4 s to 7 s of the sample drive (a bus-off) while the camera goes
+    on, each frame handed in 80 ms after its capture: frames from a second past the bus's last
+    sample on are refused as too far ahead of it, and the line said after 30 of them asked "is
+    the camera's clock ahead, or camera_time_offset_s wrong?" (a review). It now says that the
+    bus has given no IMU sample since then. (A camera 2 s ahead of a bus that goes on is still
+    said as the camera's clock: test_a_camera_clock_seconds_off_the_bus_is_said.)"""
+    cfg, messages, frames, _, _ = sample_offline
+    t0 = messages[0].timestamp
+    kept = [m for m in messages if not 4.0 < m.timestamp - t0 < 7.0]
+    live, t_last = LiveFusion(cfg), None
+    events = sorted([(m.timestamp, 0, m) for m in kept] + [(t + 0.08, 1, (t, img)) for t, img in frames],
+                    key=lambda ev: ev[:2])
+    for t, kind, x in events:
+        if kind:
+            live.push_frame(*x)
+        else:
+            if t - t0 > 7.0 and t_last is None:
+                t_last = live.stream.t_s          # the newest sample before the silence
+            live.push_can(x)
+    # (the sample of the last rate frame before 4 s waits for its acceleration frame)
+    assert 0.0 < t0 + 4.0 - t_last < 0.02, t_last - t0
+    assert live.stream.counts["vision_future"] >= 30 and live.stream.counts["imu_gaps"] == 1
+    ahead = [w for w in live.warnings if "too far ahead of the CAN bus" in w]
+    assert len(ahead) == 1 and f"no IMU sample since {t_last:.3f} s" in ahead[0], live.warnings
+    assert "camera's clock" not in ahead[0] and "gone silent" in ahead[0]
