@@ -32,6 +32,7 @@ round trip: the same drive then gives somewhat different vision results (another
 from __future__ import annotations
 
 import math
+import operator
 import os
 import threading
 from collections import deque
@@ -107,6 +108,9 @@ def _stamp(t_s, method: str) -> float:
         return float(t_s)
     except (TypeError, ValueError):
         raise TypeError(f"{method} takes the capture time in seconds on the bus clock, got {t_s!r}") from None
+    except OverflowError:     # a number beyond a float (10**400; its repr can be too long to print)
+        raise ValueError(f"{method} takes the capture time in seconds on the bus clock, got "
+                         f"{type(t_s).__name__} beyond a float's range") from None
 
 
 class LiveFusion:
@@ -200,8 +204,11 @@ class LiveFusion:
         if not isinstance(msg, can.Message):
             # (an object with only an ID and data had failed inside the decoder: a review)
             raise TypeError(f"push_can takes a python-can Message, got {type(msg).__name__}")
-        if isinstance(msg.arbitration_id, bool) or not isinstance(msg.arbitration_id, int) \
-                or isinstance(msg.timestamp, bool) or not isinstance(msg.timestamp, (int, float)):
+        try:        # any integer, a numpy.int64 from a table of IDs too (refused, a review); a bool is no ID
+            integral = operator.index(msg.arbitration_id) is not None and not isinstance(msg.arbitration_id, bool)
+        except TypeError:
+            integral = False
+        if not integral or isinstance(msg.timestamp, bool) or not isinstance(msg.timestamp, (int, float)):
             raise TypeError(f"push_can takes a python-can Message with an integer arbitration_id and a number "
                             f"as timestamp, got {msg.arbitration_id!r} and {msg.timestamp!r}")
         n = 0

@@ -864,3 +864,29 @@ def test_a_bus_gone_silent_is_said_as_the_bus_not_the_camera(sample_offline):
     ahead = [w for w in live.warnings if "too far ahead of the CAN bus" in w]
     assert len(ahead) == 1 and f"no IMU sample since {t_last:.3f} s" in ahead[0], live.warnings
     assert "camera's clock" not in ahead[0] and "gone silent" in ahead[0]
+
+
+def test_an_id_of_any_integer_type_and_a_stamp_beyond_a_float(sample_offline):
+    """``push_can`` refused a message whose ``arbitration_id`` is a ``numpy.int64`` (IDs from a
+    table): any integer is an ID now, and the first 2 s of the sample drive with them give the
+    estimate of Python ints, to the bit. ``push_vision(10**400, ...)`` raised an OverflowError
+    from ``float()``: a ValueError saying what it takes now, as the other bad stamps say it."""
+    cfg, messages, frames, _, _ = sample_offline
+    t0 = messages[0].timestamp
+    plain, numpy_ids = LiveFusion(cfg), LiveFusion(cfg)
+    for m in messages:
+        if m.timestamp - t0 > 2.0:
+            break
+        plain.push_can(m)
+        numpy_ids.push_can(can.Message(timestamp=m.timestamp, arbitration_id=np.int64(m.arbitration_id),
+                                       is_extended_id=m.is_extended_id, data=m.data, channel=m.channel))
+    a, b = plain.estimate(), numpy_ids.estimate()
+    assert numpy_ids.samples == plain.samples > 150 and a.t_s == b.t_s and a.roll_world_rad == b.roll_world_rad
+    est = plain.vision.estimate(frames[0][1])
+    for stamp in (10**400, -(10**5000)):
+        with pytest.raises(ValueError, match="push_vision takes the capture time.*beyond a float"):
+            plain.push_vision(stamp, est)
+    with pytest.raises(ValueError, match="push_frame takes the capture time.*beyond a float"):
+        plain.push_frame(10**400, frames[0][1])
+    with pytest.raises(TypeError, match="integer arbitration_id"):
+        plain.push_can(can.Message(timestamp=t0, arbitration_id=np.float64(0x174), data=bytes(8)))
