@@ -339,11 +339,12 @@ class StreamDecoder:
         counts["channel_relocked"] = counts.get("channel_relocked", 0) + 1
         if self._relock_lines < _MAX_RELOCK_LINES:
             self._relock_lines += 1
+            src = self._msg[aid]
             self.warnings.append(
-                f"frame {self._msg[aid].id_text} ({self._msg[aid].message.name}) taken from bus channel {msg.channel!r} "
-                f"from {t:.3f} s on: channel {lock.channel!r}, where it came first, carried none of it while channel "
-                f"{msg.channel!r} carried {lock.run_frames} frames in {t - lock.run_first_t:.3f} s ([can] channel "
-                "picks one; the summary's channel_relocked counts such moves)")
+                f"frame {src.id_text} ({src.message.name}) taken from bus channel {msg.channel!r} from {t:.3f} s on: "
+                f"channel {lock.channel!r}, where it came first, carried none of it while channel {msg.channel!r} "
+                f"carried {lock.run_frames} frames in {t - lock.run_first_t:.3f} s ([can] channel picks one; the "
+                "summary's channel_relocked counts such moves)")
         lock.channel, lock.run_frames = msg.channel, 0
         lock.taken += 1
         # the ID's stamps so far were the other channel's (another interface's clock, perhaps):
@@ -360,8 +361,9 @@ class StreamDecoder:
                 or other <= OTHER_CHANNEL_WARN_SHARE * (other + lock.taken):
             return
         lock.share_said = True
+        src = self._msg[aid]
         self.warnings.append(
-            f"frame {self._msg[aid].id_text} ({self._msg[aid].message.name}) comes on more than one bus channel: {other} of "
+            f"frame {src.id_text} ({src.message.name}) comes on more than one bus channel: {other} of "
             f"{other + lock.taken} frames on others than {lock.channel!r}, which is used ([can] channel picks one)")
 
     def _pump(self, force: bool = False, force_one: bool = False) -> list[ImuSample]:
@@ -679,7 +681,8 @@ class StreamDecoder:
             duration_s=float(span) if self.samples else 0.0,
             sample_rate_hz=_rate(self._samples.intervals(), span),
             clock=self.plan.sources[self._clock].name, sources=tuple(sources), channels=tuple(channels),
-            unavailable=self.unavailable, unknown_ids=dict(self.unknown_ids), unknown_more_frames=self.unknown_more_frames,
+            unavailable=self.unavailable, unknown_ids=dict(self.unknown_ids),
+            unknown_more_frames=self.unknown_more_frames,
             unmapped_frames=self.unmapped_frames, error_frames=self.error_frames,
             range_check=self.mapping.range_check,
         )
