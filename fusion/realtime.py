@@ -205,7 +205,8 @@ class LiveFusion:
             # (an object with only an ID and data had failed inside the decoder: a review)
             raise TypeError(f"push_can takes a python-can Message, got {type(msg).__name__}")
         try:        # any integer, a numpy.int64 from a table of IDs too (refused, a review); a bool is no ID
-            integral = operator.index(msg.arbitration_id) is not None and not isinstance(msg.arbitration_id, bool)
+            operator.index(msg.arbitration_id)
+            integral = not isinstance(msg.arbitration_id, bool)
         except TypeError:
             integral = False
         if not integral or isinstance(msg.timestamp, bool) or not isinstance(msg.timestamp, (int, float)):
