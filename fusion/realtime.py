@@ -32,6 +32,7 @@ round trip: the same drive then gives somewhat different vision results (another
 from __future__ import annotations
 
 import math
+import operator
 import os
 import threading
 from collections import deque
@@ -107,6 +108,9 @@ def _stamp(t_s, method: str) -> float:
         return float(t_s)
     except (TypeError, ValueError):
         raise TypeError(f"{method} takes the capture time in seconds on the bus clock, got {t_s!r}") from None
+    except OverflowError:     # a number beyond a float (10**400; its repr can be too long to print)
+        raise ValueError(f"{method} takes the capture time in seconds on the bus clock, got "
+                         f"{type(t_s).__name__} beyond a float's range") from None
 
 
 class LiveFusion:
@@ -155,6 +159,10 @@ class LiveFusion:
         # of the bus, their results too old for the filter (CLOCK_BACK_WARN_FRAMES)
         self._in_row = dict(behind=0, ahead=0, old=0)
         self._in_row_said = dict(behind=0, ahead=0, old=0)   # lines said per kind (_MAX_GAP_LINES)
+        # the bus's newest sample when the frames ahead of it in a row began, and the newest
+        # result taken (not refused as ahead): whether the bus or the camera is off (_count_ahead)
+        self._ahead_from_t = math.nan
+        self._taken_t = -math.inf
 
     def warm_up(self, seconds: float = 1.0) -> float:
         """Load the compiled kernels before the drive: the bundled sample drive's first
@@ -196,8 +204,12 @@ class LiveFusion:
         if not isinstance(msg, can.Message):
             # (an object with only an ID and data had failed inside the decoder: a review)
             raise TypeError(f"push_can takes a python-can Message, got {type(msg).__name__}")
-        if isinstance(msg.arbitration_id, bool) or not isinstance(msg.arbitration_id, int) \
-                or isinstance(msg.timestamp, bool) or not isinstance(msg.timestamp, (int, float)):
+        try:        # any integer, a numpy.int64 from a table of IDs too (refused, a review); a bool is no ID
+            operator.index(msg.arbitration_id)
+            integral = not isinstance(msg.arbitration_id, bool)
+        except TypeError:
+            integral = False
+        if not integral or isinstance(msg.timestamp, bool) or not isinstance(msg.timestamp, (int, float)):
             raise TypeError(f"push_can takes a python-can Message with an integer arbitration_id and a number "
                             f"as timestamp, got {msg.arbitration_id!r} and {msg.timestamp!r}")
         n = 0
@@ -211,6 +223,7 @@ class LiveFusion:
                     self._speeds.clear()
                     self._last_frame = (math.nan, math.nan)
                     self._gate_log.clear()             # its times are of the clock before
+                    self._taken_t = -math.inf
                     self.counts["clock_restarts"] += 1
                 # an incomplete sample (a value missing) is skipped and counted by the stream;
                 # its wheel speed still dates the frames
@@ -276,11 +289,8 @@ class LiveFusion:
                 # a bad stamp, a camera clock that stepped: refused before the estimator, whose
                 # road map would move by the stamp's travel, and not the last frame's time
                 self.stream.counts["vision_future"] += 1
-                newest = self.stream.t_s
-                self._count_in_row("ahead", f"stamped too far ahead of the CAN bus (this one {t_cap:.3f} s, the bus "
-                                   f"at {newest:.3f} s): is the camera's clock ahead, or camera_time_offset_s "
-                                   "wrong? (stream.counts['vision_future'])")
-                return _refused(f"frame at {t_cap:.3f} s too far ahead of the CAN bus ({newest:.3f} s)")
+                self._count_ahead(t_cap)
+                return _refused(f"frame at {t_cap:.3f} s too far ahead of the CAN bus ({self.stream.t_s:.3f} s)")
             self._in_row["ahead"] = 0
             # the released samples' speeds and those the samples of the capture time will carry
             # once the align window has passed (the offline run's rule; without the latter a
@@ -359,12 +369,12 @@ class LiveFusion:
             if self.stream.counts["vision_implausible"] > implausible and not implausible:
                 # said once, when the first comes (counted in stream.counts['vision_implausible'])
                 self.warnings.append(implausible_vision_warning(1) + ": stream.counts['vision_implausible'] counts them")
+            if self.stream.counts["vision_future"] == future and t_cap > self._taken_t:
+                self._taken_t = t_cap          # the newest result not refused as ahead (_count_ahead)
             if self.stream.counts["vision_future"] > future:
                 # results of another thread or process stamped ahead of the bus were dropped
                 # without a word (push_frame said it for its own frames, a review)
-                self._count_in_row("ahead", f"stamped too far ahead of the CAN bus (this one {t_cap:.3f} s, the bus "
-                                   f"at {self.stream.t_s:.3f} s): is the camera's clock ahead, or "
-                                   "camera_time_offset_s wrong? (stream.counts['vision_future'])")
+                self._count_ahead(t_cap)
             elif self.stream.counts["vision_too_old"] > old:
                 self._count_in_row("old", f"with results older than the filter's history (this one "
                                    f"{t_cap:.3f} s, the bus at {self.stream.t_s:.3f} s): is the camera's clock "
@@ -411,6 +421,26 @@ class LiveFusion:
         if line:
             self.warnings.append(line)
             self._gate_said = True
+
+    def _count_ahead(self, t_cap: float) -> None:
+        """One more frame in a row refused as too far ahead of the bus, said after
+        :data:`CLOCK_BACK_WARN_FRAMES` as what the stamps show: the bus fell silent when it gave
+        no IMU sample while these frames came, and the results taken before them went on past
+        its newest sample by more than ``max_imu_gap_s`` (the filter's own IMU gap); else the
+        camera's clock is ahead of a bus that goes on. (A bus gone silent for 3 s was said as
+        "is the camera's clock ahead?", a review.) Judged by the stamps, not by the time the
+        calls come, so that a replay faster than real time is judged as its live drive."""
+        bus_t = self.stream.t_s
+        if not self._in_row["ahead"]:
+            self._ahead_from_t = bus_t
+        if bus_t == self._ahead_from_t and self._taken_t - bus_t > self.stream.options.max_imu_gap_s:
+            what = (f"stamped too far ahead of the CAN bus, which has given no IMU sample since {bus_t:.3f} s while "
+                    f"the frames went on (this one {t_cap:.3f} s): has the CAN bus or the IMU gone silent? "
+                    "(stream.counts['vision_future']; decoder.summary() counts its frames)")
+        else:
+            what = (f"stamped too far ahead of the CAN bus (this one {t_cap:.3f} s, the bus at {bus_t:.3f} s): is the "
+                    "camera's clock ahead, or camera_time_offset_s wrong? (stream.counts['vision_future'])")
+        self._count_in_row("ahead", what)
 
     def _count_in_row(self, kind: str, what: str) -> None:
         """One more frame in a row refused for its stamp; the warning once at the limit, up to

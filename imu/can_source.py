@@ -67,9 +67,27 @@ BACKWARDS_WARN_FRACTION = 0.01
 SUSPECT_WAIT_S = 0.5
 SUSPECT_WAIT_FRAMES = 1000
 
+#: Without ``[can] channel``, a mapped ID is taken from the first bus channel it comes on, and
+#: from another once that one has carried the ID for longer than ``gap_limit_s`` (the decoder's
+#: gap) and in at least this many frames with none on the first: a stray copy on a second
+#: channel (a gateway's echo, a second interface) had locked the ID there for the whole drive.
+#: Timed by the stamps of the channel that carries the ID alone (two interfaces' clocks are not
+#: compared), and in frames too so that one far-off stamp cannot move the lock.
+RELOCK_MIN_FRAMES = 3
+#: Frames of a mapped ID on channels other than the one taken, at least this many and beyond this
+#: share of the ID's frames, put one line in :attr:`StreamDecoder.warnings` (two channels that
+#: both carry it give half; a stray echo a few per cent).
+OTHER_CHANNEL_WARN_FRAMES = 100
+OTHER_CHANNEL_WARN_SHARE = 0.25
+#: Distinct unknown IDs counted by ID (``unknown_ids``); the frames of further ones are counted in
+#: one number (a bus of random extended IDs grew the dict by 46 MB in 500,000 frames, a review).
+MAX_UNKNOWN_IDS = 1000
+
 _IMU = set(GYRO + ACCEL)
 #: Gaps kept per source for the summary of a long-running stream.
 _MAX_GAPS = 1000
+#: Lines in ``warnings`` of IDs moved to another channel (a flapping pair would grow it for good).
+_MAX_RELOCK_LINES = 20
 #: Valid speed frames kept while no sample asks for them (a bus without the clock message).
 _MAX_SPEED_HISTORY = 4096
 
@@ -137,6 +155,19 @@ class _SourceCount(_Clock):
             c.new_clock()
 
 
+@dataclass
+class _ChannelLock:
+    """The bus channel a mapped ID is taken from (no ``[can] channel``), and the run of frames of
+    it on one other channel since the last on this one (:data:`RELOCK_MIN_FRAMES`)."""
+
+    channel: Any
+    taken: int = 0                 # frames of the ID on ``channel`` (on the channels taken before too)
+    run_channel: Any = None
+    run_first_t: float = math.nan
+    run_frames: int = 0
+    share_said: bool = False
+
+
 def _rate(intervals: int, span_s: float) -> float:
     return intervals / span_s if intervals > 0 and span_s > 0 else math.nan
 
@@ -156,7 +187,9 @@ class StreamDecoder:
     Feed messages in arrival order with :meth:`push`; call :meth:`expire` now and then on a
     quiet bus and :meth:`flush` at the end. Without ``[can] channel`` the first bus channel a
     mapped ID is seen on is used and frames of that ID from other channels are counted as
-    ``other_channel`` (the log path stops with an error instead, as it sees the whole file).
+    ``other_channel`` (the log path stops with an error instead, as it sees the whole file),
+    until another channel carries the ID while that one is silent (:data:`RELOCK_MIN_FRAMES`):
+    the ID is then taken from it (``channel_relocked`` in the summary, a line in ``warnings``).
     """
 
     def __init__(self, mapping: CanMapping, mount: ImuMount, db: Any | None = None, *,
@@ -175,7 +208,8 @@ class StreamDecoder:
         self._imu_ids = frozenset(self.plan.sources[i].frame_id for i in self._imu_sources)
         self._clock = self.plan.clock
         self._vmap = vehicle_channel_map(mount)
-        self._chan_lock: dict[int, Any] = {}
+        self._chan_lock: dict[int, _ChannelLock] = {}
+        self._relock_lines = 0
         self._last_t = -math.inf
         self._id_last_t: dict[int, float] = {}
         self._reorder_s = float(self.mapping.reorder_tolerance_s)
@@ -206,6 +240,8 @@ class StreamDecoder:
         #: on the bus channel taken: what :class:`LiveSource`'s ``imu_timeout_s`` waits for.
         self.imu_frames = 0
         self.unknown_ids: dict[str, int] = {}
+        #: Frames of unknown IDs beyond the first :data:`MAX_UNKNOWN_IDS` (not kept by ID).
+        self.unknown_more_frames = 0
         self.unmapped_frames = 0
         self.error_frames = 0
         self.samples = 0
@@ -224,8 +260,7 @@ class StreamDecoder:
             elif aid in self.plan.known_ids:
                 self.unmapped_frames += 1
             else:
-                key = f"0x{aid:X}"
-                self.unknown_ids[key] = self.unknown_ids.get(key, 0) + 1
+                self._count_unknown(f"0x{aid:X}")
             return []
         self.frames_mapped += 1
         ref = self._msg[aid]
@@ -234,17 +269,22 @@ class StreamDecoder:
             self.error_frames += 1
             return []
         if bool(msg.is_extended_id) != ref.is_extended:
-            key = f"0x{aid:X}" + ("x" if msg.is_extended_id else " (standard)")
-            self.unknown_ids[key] = self.unknown_ids.get(key, 0) + 1
+            self._count_unknown(f"0x{aid:X}" + ("x" if msg.is_extended_id else " (standard)"))
             return []
         if self.mapping.channel is not None:
             if str(msg.channel) != str(self.mapping.channel):
                 counts["other_channel"] = counts.get("other_channel", 0) + 1
                 return []
         else:
-            locked = self._chan_lock.setdefault(aid, msg.channel)
-            if locked != msg.channel:
+            lock = self._chan_lock.get(aid)
+            if lock is None:
+                lock = self._chan_lock[aid] = _ChannelLock(msg.channel)
+            if lock.channel == msg.channel:
+                lock.taken += 1
+                lock.run_frames = 0
+            elif not self._relock(aid, lock, msg):
                 counts["other_channel"] = counts.get("other_channel", 0) + 1
+                self._judge_other_channel(aid, lock, counts["other_channel"])
                 return []
         if msg.is_remote_frame:
             counts["remote"] = counts.get("remote", 0) + 1
@@ -272,6 +312,59 @@ class StreamDecoder:
             return self._accept(aid, idx, t, payload, received_s)      # the usual case
         self._gate.append((aid, idx, t, payload, received_s, prev))
         return self._pump()
+
+    def _count_unknown(self, key: str) -> None:
+        """One frame of an ID the DBC does not have: by ID for the first :data:`MAX_UNKNOWN_IDS`
+        IDs, in ``unknown_more_frames`` beyond."""
+        n = self.unknown_ids.get(key)
+        if n is not None:
+            self.unknown_ids[key] = n + 1
+        elif len(self.unknown_ids) < MAX_UNKNOWN_IDS:
+            self.unknown_ids[key] = 1
+        else:
+            self.unknown_more_frames += 1
+
+    def _relock(self, aid: int, lock: _ChannelLock, msg: can.Message) -> bool:
+        """Whether a frame of ``aid`` on a channel other than the one taken moves the ID to its
+        channel: that channel has carried it for longer than ``gap_limit_s`` by its own stamps,
+        in :data:`RELOCK_MIN_FRAMES` frames or more, with none on the channel taken."""
+        t = msg.timestamp
+        if not (lock.run_frames and lock.run_channel == msg.channel):
+            lock.run_channel, lock.run_first_t, lock.run_frames = msg.channel, t, 1
+            return False
+        lock.run_frames += 1
+        if not (t - lock.run_first_t > self.gap_limit_s and lock.run_frames >= RELOCK_MIN_FRAMES):
+            return False
+        counts = self._msg_counts[aid]
+        counts["channel_relocked"] = counts.get("channel_relocked", 0) + 1
+        if self._relock_lines < _MAX_RELOCK_LINES:
+            self._relock_lines += 1
+            src = self._msg[aid]
+            self.warnings.append(
+                f"frame {src.id_text} ({src.message.name}) taken from bus channel {msg.channel!r} from {t:.3f} s on: "
+                f"channel {lock.channel!r}, where it came first, carried none of it while channel {msg.channel!r} "
+                f"carried {lock.run_frames} frames in {t - lock.run_first_t:.3f} s ([can] channel picks one; the "
+                "summary's channel_relocked counts such moves)")
+        lock.channel, lock.run_frames = msg.channel, 0
+        lock.taken += 1
+        # the ID's stamps so far were the other channel's (another interface's clock, perhaps):
+        # not the previous frame of its order and glitch rules
+        self._id_seen_t.pop(aid, None)
+        self._id_last_t.pop(aid, None)
+        return True
+
+    def _judge_other_channel(self, aid: int, lock: _ChannelLock, other: int) -> None:
+        """Say once per ID when its frames on other channels pass :data:`OTHER_CHANNEL_WARN_FRAMES`
+        and :data:`OTHER_CHANNEL_WARN_SHARE` of its frames while the channel taken carries it too
+        (they were only counted, in the summary)."""
+        if lock.share_said or other < OTHER_CHANNEL_WARN_FRAMES \
+                or other <= OTHER_CHANNEL_WARN_SHARE * (other + lock.taken):
+            return
+        lock.share_said = True
+        src = self._msg[aid]
+        self.warnings.append(
+            f"frame {src.id_text} ({src.message.name}) comes on more than one bus channel: {other} of "
+            f"{other + lock.taken} frames on others than {lock.channel!r}, which is used ([can] channel picks one)")
 
     def _pump(self, force: bool = False, force_one: bool = False) -> list[ImuSample]:
         """Frames through the glitch gate, in arrival order. A frame stamped more than
@@ -589,6 +682,7 @@ class StreamDecoder:
             sample_rate_hz=_rate(self._samples.intervals(), span),
             clock=self.plan.sources[self._clock].name, sources=tuple(sources), channels=tuple(channels),
             unavailable=self.unavailable, unknown_ids=dict(self.unknown_ids),
+            unknown_more_frames=self.unknown_more_frames,
             unmapped_frames=self.unmapped_frames, error_frames=self.error_frames,
             range_check=self.mapping.range_check,
         )

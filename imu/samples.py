@@ -111,6 +111,9 @@ class SourceStats:
     other_channel: int = 0
     bad_timestamp: int = 0
     unaligned: int = 0
+    #: Times the live decoder moved the message to another bus channel (no ``[can] channel``:
+    #: the one it came on first fell silent while another carried it).
+    channel_relocked: int = 0
     gaps: tuple[Gap, ...] = ()
     #: Times of the first and last accepted frame (on the current bus clock, live), s.
     first_s: float = math.nan
@@ -174,6 +177,8 @@ class Summary:
     channels: tuple[ChannelStats, ...]
     unavailable: tuple[str, ...]
     unknown_ids: dict[str, int] = field(default_factory=dict)
+    #: Frames of unknown IDs not counted by ID (the live decoder keeps the first 1000 IDs).
+    unknown_more_frames: int = 0
     unmapped_frames: int = 0
     error_frames: int = 0
     bad_lines: int = 0
@@ -246,8 +251,8 @@ class Summary:
             out.append(f"{col}: UNAVAILABLE (not mapped): NaN, fresh flag always False")
         for s in self.sources:
             skipped = {k: getattr(s, k) for k in ("wrong_length", "padded", "excess_length", "duplicates",
-                                                  "backwards", "remote", "other_channel", "bad_timestamp",
-                                                  "unaligned") if getattr(s, k)}
+                                                  "backwards", "remote", "other_channel", "channel_relocked",
+                                                  "bad_timestamp", "unaligned") if getattr(s, k)}
             extra = ", ".join(f"{k} {v}" for k, v in skipped.items()) or "nothing skipped"
             out.append(f"source {s.name} ({s.frame_id}): {s.frames} frames, {s.rate_hz:.1f} Hz, {extra}, "
                        f"{len(s.gaps)} gaps")
@@ -262,7 +267,9 @@ class Summary:
         if self.unknown_ids:
             top = sorted(self.unknown_ids.items(), key=lambda kv: -kv[1])
             shown = ", ".join(f"{k} ({v})" for k, v in top[:8])
-            out.append(f"unknown IDs (not in the DBC): {len(top)}: {shown}{', ...' if len(top) > 8 else ''}")
+            more = (f"; and {self.unknown_more_frames} frames of further IDs (the first {len(top)} are counted by ID)"
+                    if self.unknown_more_frames else "")
+            out.append(f"unknown IDs (not in the DBC): {len(top)}: {shown}{', ...' if len(top) > 8 else ''}{more}")
         else:
             out.append("unknown IDs (not in the DBC): none")
         out.append(f"unmapped frames of DBC messages: {self.unmapped_frames}; error frames: {self.error_frames}")

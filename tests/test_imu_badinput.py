@@ -728,3 +728,109 @@ def test_DBC_ENCODING_a_degree_sign_in_utf8_or_cp1252(tmp_path, clean, encoding)
     assert {c.unit for c in summary.channels if c.channel.startswith("gyro")} == {"°/s"}
     for col in ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s"):
         np.testing.assert_array_equal(table[col].to_numpy(), ref[col].to_numpy())
+
+
+def _on_channel(m: can.Message, channel, dt_s: float = 0.0) -> can.Message:
+    return can.Message(timestamp=m.timestamp + dt_s, arbitration_id=m.arbitration_id,
+                       is_extended_id=m.is_extended_id, data=m.data, channel=channel)
+
+
+@pytest.mark.parametrize("stray_id, source", [(0x174, "IMU_RATE"), (0x122, "ABS_SPEED")])
+def test_STRAY_FRAME_ON_A_SECOND_CHANNEL_does_not_take_its_ID_for_good(clean, stray_id, source):
+    """No ``[can] channel``; the bus on socketcan's "can0", and one copy of the first rate (or
+    wheel-speed) frame 1 ms before it on "can1" (a gateway's echo, a second interface): the ID
+    was taken from "can1" for the whole stream, every later frame of it counted ``other_channel``:
+    one incomplete sample after another, or no wheel speed, with no word (a review). Now, once
+    "can0" has carried the ID for more than ``gap_limit_s`` with none on "can1", the ID is taken
+    from "can0": counted once, said in one line, and every sample from there on is the clean
+    log's."""
+    from imu import StreamDecoder, samples_frame
+
+    _, _, msgs, ref, _ = clean
+    bus = [_on_channel(m, "can0") for m in msgs]
+    first = next(m for m in bus if m.arbitration_id == stray_id)
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    live = samples_frame([s for m in [_on_channel(first, "can1", -1e-3), *bus] for s in dec.push(m)] + dec.flush())
+    # from 0.2 s on (the move, after gap_limit_s = 0.1 s, and the glitch gate's wait for the
+    # ID's next frame), the clean log's samples
+    t_from = ref["t_s"].iloc[0] + 0.2
+    got, want = live[live["t_s"] >= t_from], ref[ref["t_s"] >= t_from]
+    assert len(got) == len(want) > 250
+    for c in ("t_s", "gyro_z_rad_s", "accel_y_m_s2", "speed_m_s", "fresh_speed"):
+        assert np.array_equal(got[c].to_numpy(), want[c].to_numpy(), equal_nan=True), c
+    said = [w for w in dec.warnings if source in w]
+    assert len(said) == 1 and "taken from bus channel 'can0'" in said[0] and "'can1'" in said[0], dec.warnings
+    src = next(s for s in dec.summary().sources if s.name == source)
+    assert src.channel_relocked == 1
+    # the frames of the ID on "can0" until the move: gap_limit_s of them at its rate, 3 at least
+    rate_hz = {"IMU_RATE": 100.0, "ABS_SPEED": 50.0}[source]
+    assert 3 <= src.other_channel <= math.ceil(sim_mapping().gap_limit_s * rate_hz) + 2, src.other_channel
+
+
+def test_TWO_CHANNELS_CARRYING_ONE_ID_keep_the_first_and_say_so(clean):
+    """Every rate frame on "can0" and, 0.2 ms later, on "can1" too (a gateway bridging two buses):
+    the lock holds ("can0" never falls silent), the samples are the clean log's, and one line
+    says that the ID comes on two channels, which one is used and that ``[can] channel`` picks
+    one (only the summary's ``other_channel`` count said it)."""
+    from imu import StreamDecoder, samples_frame
+
+    _, _, msgs, ref, _ = clean
+    bus = []
+    for m in msgs:
+        bus.append(_on_channel(m, "can0"))
+        if m.arbitration_id == 0x174:
+            bus.append(_on_channel(m, "can1", 2e-4))
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    live = samples_frame([s for m in bus for s in dec.push(m)] + dec.flush())
+    assert len(live) == len(ref)
+    for c in ("t_s", "gyro_z_rad_s", "speed_m_s"):
+        assert np.array_equal(live[c].to_numpy(), ref[c].to_numpy(), equal_nan=True), c
+    said = [w for w in dec.warnings if "more than one bus channel" in w]
+    assert len(said) == 1 and "'can0', which is used" in said[0] and "[can] channel" in said[0], dec.warnings
+    rate = next(s for s in dec.summary().sources if s.name == "IMU_RATE")
+    assert rate.channel_relocked == 0 and rate.other_channel == 300
+
+
+def test_MANY_UNKNOWN_IDS_are_counted_in_bounded_memory(clean):
+    """200,000 frames of random extended IDs the DBC does not have (a J1939 network of many
+    source addresses, a noisy bus) among the drive's frames: ``unknown_ids`` kept one entry per
+    distinct ID (500,000 frames: 46 MB, a review). Now it keeps the first ``MAX_UNKNOWN_IDS``
+    and counts the frames of the rest in one number, which the summary prints; every frame is
+    counted once, and the samples are the clean log's. A normal bus's summary is unchanged."""
+    import random
+    import tracemalloc
+
+    from imu import StreamDecoder, samples_frame
+    from imu.can_source import MAX_UNKNOWN_IDS
+
+    _, _, msgs, ref, _ = clean
+    rnd = random.Random(0)
+    dec = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    tracemalloc.start()
+    out = []
+    for i, m in enumerate(msgs):
+        out += dec.push(m)
+        for _ in range(200_000 // len(msgs) + 1):
+            dec.push(can.Message(timestamp=m.timestamp, arbitration_id=rnd.getrandbits(29),
+                                 is_extended_id=True, data=bytes(8)))
+    out += dec.flush()
+    grown = tracemalloc.get_traced_memory()[0]
+    tracemalloc.stop()
+    summary = dec.summary()
+    assert len(summary.unknown_ids) == MAX_UNKNOWN_IDS
+    n_random = len(msgs) * (200_000 // len(msgs) + 1)
+    plain = StreamDecoder(sim_mapping(), MOUNT_FRD)
+    for m in msgs:
+        plain.push(m)
+    plain.flush()
+    normal = plain.summary()
+    assert sum(summary.unknown_ids.values()) + summary.unknown_more_frames \
+        == sum(normal.unknown_ids.values()) + n_random
+    # the first thousand IDs' entries and the decoder's own state: 0.1-0.2 MB here; one entry
+    # per ID had grown by 19 MB (a tenth of that would still be caught)
+    assert grown < 2_000_000, grown
+    said = next(line for line in summary.lines() if line.startswith("unknown IDs"))
+    assert f"and {summary.unknown_more_frames} frames of further IDs" in said, said
+    assert normal.unknown_more_frames == 0 and "further IDs" not in "\n".join(normal.lines())
+    got = samples_frame(out)
+    assert len(got) == len(ref) and np.array_equal(got["gyro_z_rad_s"].to_numpy(), ref["gyro_z_rad_s"].to_numpy())

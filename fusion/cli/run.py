@@ -322,7 +322,8 @@ def _can_counts(can: dict) -> dict:
     # [Hz]", a review; can_frames_read is the sum of the four rows after it)
     return {"can_frames_read": can.get("frames_read"), "can_frames_decoded": can.get("frames_mapped"),
             "can_frames_other_messages": can.get("unmapped_frames"),
-            "can_frames_unknown_ids": sum((can.get("unknown_ids") or {}).values()),
+            "can_frames_unknown_ids": sum((can.get("unknown_ids") or {}).values())
+            + (can.get("unknown_more_frames") or 0),      # a live summary's IDs past the first 1000
             "can_error_frames": can.get("error_frames"), "imu_samples_decoded": can.get("samples"),
             "imu_rate_hz": round(rate, 1) if isinstance(rate, float) else rate}
 
