@@ -40,6 +40,14 @@ def test_a_gap_in_the_imu_samples_restarts_the_filter(drive, smooth):
     base = fuse(drive.imu, drive.vision, lever_arm_m=drive.lever_arm_m, options=OPTIONS, smooth=smooth)
     assert run.counts["imu_gaps"] == 1 and base.counts["imu_gaps"] == 0
     assert any("gap" in w and "started again" in w for w in run.warnings), run.warnings
+    # the frames inside the gap are said as not used (they were counted only as ahead of the
+    # filter or too old for it): those stamped strictly between the samples on either side
+    t_imu = drive.imu["t_s"][keep].to_numpy()
+    k = int(np.flatnonzero(np.diff(t_imu) > OPTIONS.max_imu_gap_s)[0])
+    vt = drive.vision["t_s"].to_numpy()
+    inside = int(np.sum((vt > t_imu[k]) & (vt < t_imu[k + 1])))
+    assert inside >= 29     # 1 s at 30 fps
+    assert any(f"; {inside} vision result(s) inside them were not used" in w for w in run.warnings), run.warnings
     f, t = run.fused, run.fused["t_s"].to_numpy()
     assert np.all(np.isfinite(f[["roll_deg", "bank_deg", "roll_sigma_deg"]].to_numpy()))
     assert _abs_error(f, drive.truth, "roll_deg")[(t >= 31.0) & (t < 34.0)].max() < 1.0
