@@ -23,7 +23,9 @@ and ``vifusion run --calibration FILE`` starts the next drive from it (the keys 
 config's ``[fusion]``; they can also be written there). The biases are in the vehicle frame of
 the IMU as it was mounted, so ``[imu]`` records that mount: a drive whose ``[imu] axes`` differ
 is refused (:func:`apply_calibration`; the same biases turned by another mount are wrong by
-twice their size on a flipped axis). A file without ``[imu]`` (written before it was added, or by
+twice their size on a flipped axis); one whose ``position_m`` differs is warned
+(:func:`mount_warnings`: the biases are the sensor's, wherever it sits, but another position
+often means another vehicle's IMU). A file without ``[imu]`` (written before it was added, or by
 hand) is taken as it is. The sigmas are the filter's at the end of the drive: if the IMU was
 switched off in between, add its turn-on repeatability (datasheet) before reusing them.
 """
@@ -45,12 +47,16 @@ from .files import write_bytes_atomically
 from .noise import NoiseModel, S
 
 __all__ = ["CALIBRATION_KEYS", "calibration_table", "calibration_from_state", "pitch_gyro_prior_deg_s",
-           "write_calibration", "read_calibration", "apply_calibration"]
+           "write_calibration", "read_calibration", "apply_calibration", "mount_warnings"]
 
 #: The ``[fusion]`` keys of a calibration (vehicle frame).
 CALIBRATION_KEYS = ("gyro_bias_deg_s", "gyro_bias_sigma_deg_s", "accel_bias_m_s2", "accel_bias_sigma_m_s2")
-#: Where :func:`read_calibration` puts the file's ``[imu] axes`` (absent when it has none).
+#: Where :func:`read_calibration` puts the file's ``[imu] axes`` and ``position_m`` (absent when
+#: it has none).
 MOUNT_KEY = "imu_axes"
+POSITION_KEY = "imu_position_m"
+#: Positions closer than this are the same, m: the file keeps 6 significant digits (3 um at 1.5 m).
+_SAME_POSITION_M = 1e-3
 
 
 def pitch_gyro_prior_deg_s(noise: NoiseModel) -> tuple[float, float]:
@@ -142,6 +148,8 @@ def read_calibration(path: str | Path) -> dict:
             raise ConfigError(f"{path}: {e}") from None
         if axes is not None:
             out[MOUNT_KEY] = list(mount.axes)
+        if position is not None:
+            out[POSITION_KEY] = list(mount.position_m)
     return out
 
 
@@ -154,4 +162,16 @@ def apply_calibration(fusion_table: dict, cal: dict, mount: ImuMount, source: st
         raise ConfigError(f"{source}: a calibration of the IMU mounted with [imu] axes = {list(axes)}, "
                           f"but this drive's are {list(mount.axes)}: its biases are in the vehicle frame of "
                           "that mount")
-    return {**fusion_table, **{k: v for k, v in cal.items() if k != MOUNT_KEY}}
+    return {**fusion_table, **{k: v for k, v in cal.items() if k not in (MOUNT_KEY, POSITION_KEY)}}
+
+
+def mount_warnings(cal: dict, mount: ImuMount, source: str | Path) -> list[str]:
+    """A line when the calibration's IMU sat elsewhere than this drive's ``[imu] position_m``
+    says (a review: a campaign took another vehicle's calibration without a word). Not refused:
+    a bias is the sensor's, wherever it is mounted, and a corrected position keeps it."""
+    position = cal.get(POSITION_KEY)
+    if position is None or max(abs(a - b) for a, b in zip(position, mount.position_m)) < _SAME_POSITION_M:
+        return []
+    fmt = lambda p: "[" + ", ".join(f"{x:g}" for x in p) + "]"   # noqa: E731
+    return [f"{source}: a calibration of the IMU at [imu] position_m = {fmt(position)}, but this drive's is at "
+            f"{fmt(mount.position_m)}: its biases hold for the same IMU moved, not for another vehicle's"]

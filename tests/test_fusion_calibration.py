@@ -99,6 +99,7 @@ def test_a_held_bias_round_trips(tmp_path):
     write_calibration(cal, path, "test", mount=ImuMount(("x", "-y", "-z"), (0.0, 0.0, 0.5)))
     back = read_calibration(path)
     assert back.pop("imu_axes") == ["x", "-y", "-z"]
+    assert back.pop("imu_position_m") == [0.0, 0.0, 0.5]
     # one spelling of an axis: "+x" is "x" (a drive's "+x" was refused against its own mount)
     from fusion.calibration import apply_calibration
 
@@ -108,6 +109,28 @@ def test_a_held_bias_round_trips(tmp_path):
     assert back == cal
     opts, _ = fusion_options_from_table(back)
     assert opts.noise.init_gyro_bias_rad_s[1] == 0.0
+
+
+def test_a_calibration_of_an_imu_mounted_elsewhere_is_warned(tmp_path):
+    """A calibration written at one IMU position and applied to a drive whose ``[imu]
+    position_m`` differs is taken (a bias is the sensor's wherever it sits) but said: a campaign
+    had carried a car's calibration onto a motorcycle's drives without a word (a review). The
+    same position, to the file's 6 digits, or a file without a position says nothing."""
+    from fusion.calibration import apply_calibration, mount_warnings
+    from imu import ImuMount
+
+    cal = {"gyro_bias_deg_s": [0.1, 0.0, -0.2], "accel_bias_m_s2": [0.0, 0.01, 0.0]}
+    here = ImuMount(("x", "-y", "-z"), (1.5, 0.3, 1.2))
+    path = tmp_path / "calibration.toml"
+    write_calibration(cal, path, "test", mount=ImuMount(("x", "-y", "-z"), (0.0, 0.0, 0.5)))
+    back = read_calibration(path)
+    assert apply_calibration({}, back, here, path) == cal          # the biases are taken
+    said = mount_warnings(back, here, path)
+    assert len(said) == 1 and "position_m = [0, 0, 0.5]" in said[0] and "[1.5, 0.3, 1.2]" in said[0]
+    write_calibration(cal, path, "test", mount=ImuMount(("x", "-y", "-z"), (1.5 + 1e-7, 0.3, 1.2)))
+    assert mount_warnings(read_calibration(path), here, path) == []
+    path.write_text("[fusion]\ngyro_bias_deg_s = [0.1, 0.0, -0.2]\n")
+    assert mount_warnings(read_calibration(path), here, path) == []
 
 
 def _fused_with(cal):

@@ -97,8 +97,8 @@ def _run(args: argparse.Namespace) -> int:
     from vision.options import options_from_table
     from vision.video import default_workers, estimate_video, start_numba
 
-    from ..calibration import (apply_calibration, calibration_table, pitch_gyro_prior_deg_s, read_calibration,
-                               write_calibration)
+    from ..calibration import (apply_calibration, calibration_table, mount_warnings, pitch_gyro_prior_deg_s,
+                               read_calibration, write_calibration)
     from ..config import load_config
     from ..drive import (check_overlap, check_truth_overlap, frame_speeds, frames_outside_warning, frames_warnings,
                          read_frame_times, read_truth, vision_warnings)
@@ -124,6 +124,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.calibration is not None:   # (a campaign reads it before it replaces anything)
         cal = getattr(args, "calibration_table", None) or read_calibration(args.calibration)
         fusion_table = apply_calibration(fusion_table, cal, cfg.imu, args.calibration)
+        warnings += mount_warnings(cal, cfg.imu, args.calibration)
         fusion_source += f" with {args.calibration}"
     fusion_opts, settings = fusion_options_from_table(fusion_table, fusion_source)
     smooth = args.smooth or settings.smooth
