@@ -245,6 +245,7 @@ def fuse(imu: pd.DataFrame, vision: pd.DataFrame | None, *, lever_arm_m=(0.0, 0.
                         "the filter started again after each, keeping the IMU biases"
                         + (f"; {inside} vision result(s) inside them were not used" if inside else ""))
     warnings += imu_setup_warnings(accel, speed_known, counts["gravity_rejected"], options.gravity_every)
+    warnings += start_warnings(t, gyro, options)
     warnings += speed_span_warnings(t, speed_known, np.asarray(fresh, dtype=bool) & np.isfinite(speed))
     return FusedRun(table, counts, smooth, rel_cov[1], warnings)
 
@@ -281,6 +282,38 @@ def imu_setup_warnings(accel_m_s2: np.ndarray, speed_known: np.ndarray, gravity_
         out.append(f"{gravity_refused} of {attempted} gravity updates refused as outliers: the accelerometer "
                    "disagrees with the model (check [imu] axes and position_m, the accelerometer's units)")
     return out
+
+
+#: A drive whose first :data:`START_SPAN_S` turn at more than this mean yaw rate, deg/s, starts in
+#: a curve (1.5 deg/s: a 900 m radius at 80 km/h; the bench drives start on a straight at 0.2-0.3,
+#: their yaw-rate gyro's bias); with the gyro biases uncalibrated (a prior sigma over
+#: :data:`CALIBRATED_BIAS_DEG_S`) it is warned (:func:`start_warnings`).
+START_TURN_DEG_S = 1.5
+START_SPAN_S = 2.0
+CALIBRATED_BIAS_DEG_S = 0.1
+
+
+def start_warnings(t_s: np.ndarray, gyro_rad_s: np.ndarray, options: FusionOptions) -> list[str]:
+    """A drive that starts in a curve without calibrated gyro biases. On a straight the world
+    roll is the accelerometer's lateral force alone and the gyro biases settle in seconds; in a
+    turn the yaw-rate bias and the world roll trade in the centripetal term (``v r``: 1 deg/s of
+    bias at 20 m/s is 2 deg of roll) and only the vision's heading against the lane curvature
+    tells them apart, slowly. Measured (forward filter, the bench's 60 s drive cut to start at
+    its first curve's roll-in, 5 s): bank 0.40 and 0.42 deg RMS over 2-6 s and 6-15 s after the
+    start against 0.02 and 0.04 deg from the same start with the drive's own end-of-drive
+    calibration; started just before the second curve (25 s) 0.79 and 0.30 against 0.12 and
+    0.03. A campaign's calibration (``--calibration``) is the remedy."""
+    if not len(t_s):
+        return []
+    first = t_s - t_s[0] < START_SPAN_S
+    turn = math.degrees(float(np.mean(np.abs(gyro_rad_s[first, 2]))))
+    prior = math.degrees(float(np.broadcast_to(np.asarray(options.noise.init_gyro_bias_rad_s, dtype=float), (3,))[2]))
+    if turn <= START_TURN_DEG_S or prior <= CALIBRATED_BIAS_DEG_S:       # (the yaw-rate gyro's prior)
+        return []
+    return [f"the drive starts in a turn ({turn:.1f} deg/s of yaw rate over its first {START_SPAN_S:g} s) with "
+            f"uncalibrated gyro biases (prior {prior:.2g} deg/s): in a turn the yaw-rate bias and the world roll trade, "
+            "and the world roll and bank can be tenths of a degree off for 15 s or more; start it from a calibration "
+            "(--calibration: a campaign's, or a drive with a straight) or on a straight"]
 
 
 def glitch_warnings(counts: dict, reacquire_after_s: float) -> list[str]:
