@@ -346,3 +346,38 @@ def test_the_configs_start_time_is_the_first_frames_stamp(tmp_path):
     cfg = load_config(tmp_path / "d" / "config.toml")
     assert frames["t_s"].iloc[0] - truth["t_s"].iloc[0] == pytest.approx(0.05, abs=1e-9)
     assert cfg.video.start_s == pytest.approx(frames["t_s"].iloc[0], abs=1e-9)
+
+
+@pytest.mark.parametrize("edits, named", [
+    # each value within its key's range, the drive beyond what a vehicle or the IMU does (a review:
+    # exit 0, and the CAN log held the DBC's 4.18 g for the truth's 6.1 g on 185 of 201 samples)
+    ({"curvature_1_m = -0.005": "curvature_1_m = -0.02", "speed_kmh = 72": "speed_kmh = 200"},
+     ("would lean 7", "beyond the 60 deg", "speed_kmh")),
+    ({"curvature_1_m = -0.005": "curvature_1_m = 0.2", "speed_kmh = 72": "speed_kmh = 400"},
+     ("would lean", "beyond the 60 deg", "curvature_1_m")),
+    ({'vehicle = "motorcycle"': 'vehicle = "car"', "curvature_1_m = -0.005": "curvature_1_m = -0.02",
+      "speed_kmh = 72": "speed_kmh = 100"},
+     ("car's tyres would take a side force of 1.", "beyond the 1 g")),
+    ({"gyro_bias_deg_s = [0.2,": "gyro_bias_deg_s = [200.0,"},
+     ("gyro_x", "reaches 2", "-163.8 to 163.8 deg/s", "IMU_RATE.RateX", "[imu] gyro_bias_deg_s")),
+    ({"gyro_bias_deg_s = [0.2, -0.15, 0.3]": "accel_bias_m_s2 = [50, 0, 0]"},
+     ("accel_x", "reaches 50.", "-40.96 to 40.92 m/s^2", "IMU_ACC.AccX", "[imu] accel_bias_m_s2")),
+])
+def test_a_drive_no_vehicle_or_imu_could_give_is_refused_before_writing(tmp_path, edits, named):
+    """A motorcycle leaning beyond 60 deg, a car's tyres beyond 1 g of side force, or an IMU
+    channel (bias and noise included) beyond its DBC signal's range: one line naming the value,
+    the limit and the key to change, exit 2, and no folder (checked before anything is written)."""
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    for old, new in edits.items():
+        assert old in src
+        src = src.replace(old, new)
+    p = tmp_path / "extreme.toml"
+    p.write_text(src)
+    out = tmp_path / "drive"
+    r = vifusion("simulate", p, "--out", out, "--no-video", "--quiet")
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in r.stderr, r.stderr
+    for text in named:
+        assert text in lines[0], lines[0]
+    assert not out.exists() and not out.with_name("drive.partial").exists()
