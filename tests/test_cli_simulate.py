@@ -381,3 +381,55 @@ def test_a_drive_no_vehicle_or_imu_could_give_is_refused_before_writing(tmp_path
     for text in named:
         assert text in lines[0], lines[0]
     assert not out.exists() and not out.with_name("drive.partial").exists()
+
+
+@pytest.mark.parametrize("width, height, codec, text", [
+    (321, 181, "mp4v", "the mp4v codec writes even sizes only (it would write 320x180 frames"),   # it did, exit 0
+    (321, 180, "ffv1", "the ffv1 codec writes even sizes only (it would write 320x180 frames"),
+    (320, 181, "mjpg", "the mjpg codec writes even sizes only (it would write 320x180 frames"),
+    (1, 1, "mp4v", "renders 64 to 4096 px a side"),          # was "OpenCV cannot write mp4v video"
+    (20000, 20000, "png", "renders 64 to 4096 px a side"),   # was a traceback allocating 2.98 GiB
+    (4098, 2304, "mp4v", "renders 64 to 4096 px a side"),
+])
+def test_a_frame_size_the_codec_or_the_memory_cannot_take_is_refused(tmp_path, width, height, codec, text):
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    p = tmp_path / "size.toml"
+    p.write_text(src.replace("width = 320\nheight = 180", f"width = {width}\nheight = {height}", 1)
+                 .replace("[video]\n", f'[video]\ncodec = "{codec}"\n', 1))
+    r = vifusion("simulate", p, "--out", tmp_path / "drive", "--frames", 1, "--quiet")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and text in r.stderr, r.stderr
+    assert f"{width}x{height}" in r.stderr and not list(tmp_path.glob("drive*"))
+
+
+def test_png_frames_keep_an_odd_size_the_config_gives(tmp_path):
+    """PNG frames are written at any size: 321x181 frames, as the config says (the video
+    codecs' even sizes are refused above)."""
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    p = tmp_path / "odd.toml"
+    p.write_text(src.replace("width = 320\nheight = 180", "width = 321\nheight = 181", 1)
+                 .replace("[video]\n", '[video]\ncodec = "png"\n', 1))
+    r = vifusion("simulate", p, "--out", tmp_path / "drive", "--frames", 2, "--quiet")
+    assert r.returncode == 0, r.stderr
+    cfg = load_config(tmp_path / "drive" / "config.toml")
+    frames = sorted((tmp_path / "drive" / "video").glob("*.png"))
+    assert len(frames) == 2 and cv2.imread(str(frames[0])).shape[:2] == (cfg.camera.height, cfg.camera.width) == (181, 321)
+
+
+def test_running_out_of_memory_is_one_line_and_leaves_no_folder(tmp_path, monkeypatch, capsys):
+    """A frame too large for the machine's memory (numpy's ``_ArrayMemoryError``, a traceback
+    in a review's 20000x20000 PNG drive) is one line, exit 2, and no ``OUT`` or ``OUT.partial``."""
+    from drivesim import drive as drive_mod
+
+    from fusion import cli
+
+    def no_memory(*args, **kwargs):
+        raise MemoryError("Unable to allocate 2.98 GiB for an array with shape (20000, 20000)")
+        yield
+
+    monkeypatch.setattr(drive_mod, "render_frames", no_memory)
+    out = tmp_path / "drive"
+    assert cli.main(["simulate", str(TEST_SCENARIOS / "tiny_banked_curve.toml"), "--out", str(out), "--frames", "1",
+                     "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and "out of memory simulating 320x180 frames" in err, err
+    assert not out.exists() and not out.with_name("drive.partial").exists()

@@ -29,6 +29,14 @@ __all__ = ["Scenario", "ImuSpec", "VideoSpec", "CanSpec", "load_scenario", "pars
 
 LOG_FORMATS = ("asc", "blf", "log", "trc", "csv", "mf4")
 CODECS = ("mp4v", "ffv1", "mjpg", "png")
+#: The frame sizes the simulator renders, px a side. At least 64: OpenCV's writers fail far below
+#: (mp4v and ffv1 refuse 1x1, MJPG's corrupted the heap and killed the process at 4x4), and the
+#: estimator finds nothing much below it (tiny_banked_curve over 4 s: no valid frame at 96x54,
+#: 5 % at 128x72, 12 % at 160x90), while a drive it fails on can still be made. At most 4096: a
+#: frame takes about 150 bytes a pixel to render (measured: float64 radiance, sub-pixel buffers,
+#: the sensor's noise), 2.5 GB at 4096x4096 (a review's 20000x20000 failed allocating 3 GiB),
+#: and mp4v writes at most 8190; the papers' cameras are 1920x1080 at most.
+FRAME_PX = (64, 4096)
 
 
 @dataclass(frozen=True)
@@ -263,6 +271,7 @@ def parse_scenario(data: dict, source: str) -> Scenario:
         camera_time_offset_s=vi.get("camera_time_offset_s", "float", 0.0, min=-10.0, max=10.0),
     )
     vi.done()
+    _check_frame_size(camera, video.codec, source)
 
     cn = table("can")
     can = CanSpec(
@@ -299,6 +308,22 @@ def parse_scenario(data: dict, source: str) -> Scenario:
                     markings=markings, segments=segments, motion=motion, imu=imu, video=video,
                     can=can, look=look, supersample=supersample, truth_rate_hz=truth_rate,
                     description=description, start=start, source=Path(source))
+
+
+def _check_frame_size(camera: Camera, codec: str, source: str) -> None:
+    """:data:`FRAME_PX`, and even sizes for the video codecs: mp4v, ffv1 and mjpg write an odd
+    width or height one pixel smaller (a review: 321x181 wrote 320x180 frames, and the config's
+    321x181 then failed ``vifusion vision``); PNG frames keep any size."""
+    size = f"[camera] width x height = {camera.width}x{camera.height}"
+    lo, hi = FRAME_PX
+    if not (lo <= camera.width <= hi and lo <= camera.height <= hi):
+        raise ConfigError(f"{source}: {size}: the simulator renders {lo} to {hi} px a side (the estimator finds "
+                          f"nothing on smaller frames; a larger one takes over 2.5 GB to render)")
+    if codec != "png" and (camera.width % 2 or camera.height % 2):
+        even = f"{camera.width - camera.width % 2}x{camera.height - camera.height % 2}"
+        raise ConfigError(f"{source}: {size}: the {codec} codec writes even sizes only (it would write {even} "
+                          f"frames, which the config would not describe): give an even width and height, or "
+                          f'[video] codec = "png"')
 
 
 def load_scenario(path: str | Path) -> Scenario:
