@@ -433,3 +433,46 @@ def test_running_out_of_memory_is_one_line_and_leaves_no_folder(tmp_path, monkey
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and "out of memory simulating 320x180 frames" in err, err
     assert not out.exists() and not out.with_name("drive.partial").exists()
+
+
+def test_a_simulation_killed_while_writing_its_can_log_is_simulated_again(tmp_path):
+    """SIGKILL while the CAN log is written left ``OUT.partial`` holding ``can.asc`` alone, and
+    the next ``simulate`` refused it as not an unfinished simulation's folder (a review): the
+    folder's first file is now a marker, so the same command finishes the drive. A folder of
+    that name holding a user's ``can.asc`` alone is still refused, untouched, and ``run
+    --drive`` refuses the killed one as unfinished."""
+    import os
+    import shutil
+    import signal
+    import time
+
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    long = tmp_path / "long.toml"
+    long.write_text(src.replace("duration_s = 2.0", "duration_s = 20.0", 1))
+    out = tmp_path / "drive"
+    partial = out.with_name("drive.partial")
+    p = subprocess.Popen([sys.executable, "-m", "fusion", "simulate", str(long), "--out", str(out), "--quiet",
+                          "--no-video"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (partial / "can.asc").is_file() and p.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.002)
+    os.kill(p.pid, signal.SIGKILL)
+    p.communicate(timeout=60)
+    left = sorted(q.name for q in partial.iterdir())
+    assert "can.asc" in left and "imu_truth.csv" not in left, left   # killed during the CAN log, as in the review
+    shutil.copytree(partial, tmp_path / "copy.partial")
+    r = vifusion("simulate", long, "--out", out, "--quiet", "--no-video")
+    assert r.returncode == 0, r.stderr
+    assert (out / "imu_truth.csv").is_file() and not partial.exists()
+    assert not [q.name for q in out.iterdir() if q.name.startswith(".")]     # the marker goes before the rename
+    assert len(pd.read_csv(out / "imu_truth.csv")) == 2001      # 20 s at 100 Hz, both ends
+    r = vifusion("run", "--drive", tmp_path / "copy.partial", "--out", tmp_path / "run")
+    assert r.returncode == 2 and "unfinished simulation" in r.stderr, r.stderr
+
+    mine = tmp_path / "mine.partial"
+    mine.mkdir()
+    (mine / "can.asc").write_text("precious")
+    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "mine", "--no-video")
+    assert r.returncode == 2 and "is not an unfinished simulation's folder" in r.stderr, r.stderr
+    assert (mine / "can.asc").read_text() == "precious" and sorted(mine.iterdir()) == [mine / "can.asc"]

@@ -15,7 +15,8 @@ Files in the output folder:
 * ``scenario.toml``: the scenario it came from; ``preview.png``: the first frame.
 
 The folder is written as ``<out>.partial`` and renamed when complete, so an interrupted run
-never leaves a drive that looks whole.
+never leaves a drive that looks whole; its first file, :data:`fusion.drive.SIMULATION_MARKER`
+(removed before the rename), tells a later run that the folder is an unfinished simulation's.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from fusion.drive import SIMULATION_MARKER
 from fusion.errors import ConfigError, InputError
 
 from .imu_model import simulate_imu
@@ -226,18 +228,22 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
                              "replaces only a simulated drive")
     tmp = out_dir.with_name(out_dir.name + ".partial")
     if tmp.is_file() or (tmp.is_dir() and any(tmp.iterdir()) and (
-            any(not _simulator_wrote(p.name) for p in tmp.iterdir()) or not (tmp / "imu_truth.csv").is_file())):
-        # an unfinished simulation's folder is replaced (empty, or with the IMU truth only a
-        # simulation writes); a user's of that name is not (a review: 'mydata.partial/notes.txt',
-        # and a folder holding only a config.toml, were deleted without a word)
+            any(not _simulator_wrote(p.name) for p in tmp.iterdir())
+            or not any((tmp / n).is_file() for n in (SIMULATION_MARKER, "imu_truth.csv")))):
+        # an unfinished simulation's folder is replaced (empty, or with the marker written first,
+        # or the IMU truth, of a simulation from before the marker); a user's of that name is
+        # not (a review: 'mydata.partial/notes.txt', and a folder holding only a config.toml,
+        # were deleted without a word)
         raise InputError(f"{tmp} exists and is not an unfinished simulation's folder: move it, or give "
                          "another --out")
+    plan = _plan(scenario)      # nothing touched yet: a drive no vehicle or IMU could give is refused here
     if tmp.exists():
         shutil.rmtree(tmp)
-    plan = _plan(scenario)      # nothing written: a drive no vehicle or IMU could give is refused here
     tmp.mkdir(parents=True)
     try:
+        (tmp / SIMULATION_MARKER).write_text("an unfinished 'vifusion simulate': simulate the drive again\n")
         _simulate_into(scenario, plan, tmp, progress=progress, max_frames=max_frames, render_video=render_video)
+        (tmp / SIMULATION_MARKER).unlink()
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)    # no half drive left to look like one
         raise
@@ -255,7 +261,7 @@ _SIMULATED_ONLY = ("imu_truth.csv", "truth_frames.csv")
 def _simulator_wrote(name: str) -> bool:
     """Whether a file of this name is one :func:`simulate` writes."""
     return (name in {"frames.csv", "config.toml", "truth.csv", "truth_frames.csv", "imu_truth.csv", "scenario.toml",
-                     "preview.png", *VIDEO_NAMES.values()}
+                     "preview.png", SIMULATION_MARKER, *VIDEO_NAMES.values()}
             or name.startswith("can.") or name.endswith(".dbc"))
 
 
