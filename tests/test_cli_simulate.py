@@ -172,6 +172,10 @@ def test_bad_scenario_is_one_line_naming_the_key(tmp_path, edit, key):
     ("manoeuvre", "repeat = 100000\nperiod_m = 10", "repeat"),              # did not finish
     ("manoeuvre", "shift_m = 10.5\nrepeat = 12\nperiod_m = 21", "manoeuvre"), # 92.7 m, adding up
     ("scenario", "seed = 18446744073709551615", "seed"),                    # 2^64 - 1: the renderer's traceback
+    # a review's cosmetic findings (session 29): each was exit 0 or named the wrong key
+    ("segment", "curvature_1_m = -0.005\nradius_m = -200", "radius_m and curvature_1_m both given"),
+    ("video", "fps = 0.1", "fps = 0.1 gives no frame in the 2 s"),           # 2 s at 0.1 fps: no frame, exit 0
+    ("scenario", 'name = "two\\nlines"', "name must not hold control characters"),   # broke the summary line
 ])
 def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
     """Checked when the scenario is read, each a one-line error naming its key."""
@@ -182,6 +186,10 @@ def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
     src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
     if table == "segment":
         bad = src.replace("curvature_1_m = -0.005", edit, 1)
+    elif table == "video" and edit.startswith("fps"):
+        bad = src.replace("fps = 15.0", edit, 1)
+    elif table == "scenario" and edit.startswith("name"):
+        bad = src.replace('name = "tiny_banked_curve"', edit, 1)
     elif table == "scenario":
         bad = src.replace("seed = 5\n", edit + "\n", 1)
     elif table == "manoeuvre":
@@ -198,14 +206,28 @@ def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
     assert "\n" not in str(e.value)
 
 
+def test_a_key_before_any_table_is_named_as_such(tmp_path):
+    """A scenario without its ``[scenario]`` header: its keys are at the top level, and the error
+    said "[name] is not a known table" (a review)."""
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    p = tmp_path / "headless.toml"
+    p.write_text(src.replace("[scenario]\n", "", 1))
+    r = vifusion("simulate", p, "--out", tmp_path / "out")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "name is given before any [table] header" in r.stderr and "not a known table" not in r.stderr, r.stderr
+
+
 def test_missing_scenario_file(tmp_path):
     r = vifusion("simulate", tmp_path / "nope.toml", "--out", tmp_path / "out")
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "nope.toml" in r.stderr
 
 
-def test_negative_frame_count_is_one_line(tmp_path):
-    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "out", "--frames", "-1")
-    assert r.returncode == 2 and r.stderr.strip() == "error: --frames must be >= 0, got -1", r.stderr
+@pytest.mark.parametrize("n", [-1, 0])
+def test_a_frame_count_under_one_is_one_line(tmp_path, n):
+    """``--frames 0`` wrote a drive of no frames and no video, exit 0 (a review)."""
+    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "out", "--frames", n)
+    assert r.returncode == 2 and r.stderr.strip() == f"error: --frames must be >= 1 (a drive needs frames), got {n}", \
+        r.stderr
     assert not (tmp_path / "out").exists()
 
 

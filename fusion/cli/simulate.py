@@ -30,8 +30,8 @@ def run(args: argparse.Namespace) -> int:
     from . import settle_heap
 
     settle_heap()
-    if args.frames is not None and args.frames < 0:
-        raise InputError(f"--frames must be >= 0, got {args.frames}")
+    if args.frames is not None and args.frames < 1:    # 0 wrote a drive of no frames, exit 0
+        raise InputError(f"--frames must be >= 1 (a drive needs frames), got {args.frames}")
     scenario = load_scenario(args.scenario)
     t0 = time.perf_counter()
     try:

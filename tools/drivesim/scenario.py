@@ -9,6 +9,7 @@ Every key is listed in the README ("Scenario files"; units are in the names, def
 from __future__ import annotations
 
 import math
+import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -111,6 +112,8 @@ class Scenario:
 
 def _segment(t: Table) -> Segment:
     length = t.get("length_m", "float", min=0.1)
+    if t.has("radius_m") and t.has("curvature_1_m"):    # one was named "not a known key"
+        raise t.error("radius_m", "and curvature_1_m both given: give one (curvature_1_m = 1 / radius_m)")
     if t.has("radius_m"):
         r = t.get("radius_m", "float")
         if r == 0:
@@ -156,6 +159,9 @@ def parse_scenario(data: dict, source: str) -> Scenario:
     """Build a :class:`Scenario` from parsed TOML; errors name ``source``, the table and key."""
     known = {"scenario", "camera", "mount", "road", "motion", "imu", "video", "can", "render", "truth"}
     for name in data:
+        if not isinstance(data[name], dict):   # a key before any [table] (it was "[name] is not a known table")
+            raise ConfigError(f"{source}: {name} is given before any [table] header: put it under its table "
+                              "(the file begins with [scenario])")
         if name not in known:
             raise ConfigError(f"{source}: [{name}] is not a known table (known: {', '.join(sorted(known))})")
 
@@ -164,6 +170,8 @@ def parse_scenario(data: dict, source: str) -> Scenario:
 
     sc = table("scenario")
     name = sc.get("name", "str", Path(source).stem)
+    if any(unicodedata.category(c) == "Cc" for c in name):   # a newline in it broke the summary line
+        raise sc.error("name", f"must not hold control characters (a newline, a tab), got {name!r}")
     duration = sc.get("duration_s", "float", min=0.1, max=3600.0)
     # numpy's generators take no negative seed, the renderer's compiled code none of 2^63 or more
     seed = sc.get("seed", "int", 0, min=0, max=2**63 - 1)
@@ -302,6 +310,10 @@ def parse_scenario(data: dict, source: str) -> Scenario:
 
     if video.start_s >= duration:
         raise ConfigError(f"{source}: [video] start_s must be < [scenario] duration_s")
+    if math.floor((duration - video.start_s) * video.fps + 1e-9) < 1:    # was a drive of no frames, exit 0
+        raise ConfigError(f"{source}: [video] fps = {video.fps:g} gives no frame in the {duration - video.start_s:g} s "
+                          f"from [video] start_s to [scenario] duration_s: a drive needs frames (fps at least "
+                          f"{1.0 / (duration - video.start_s):.3g})")
     if imu.start_s >= duration:
         raise ConfigError(f"{source}: [imu] start_s must be < [scenario] duration_s")
     return Scenario(name=name, duration_s=duration, seed=seed, camera=camera, mount=mount,
