@@ -18,12 +18,18 @@ from imu.log_source import log_suffix
 from .config import VideoTiming
 from .errors import InputError
 
-__all__ = ["DriveFiles", "SAMPLE_DRIVE", "SPEED_MAX_AGE_S", "SPEED_SPAN_WARN_S", "find_drive_files", "frame_speeds",
+__all__ = ["DriveFiles", "SAMPLE_DRIVE", "SIMULATION_MARKER", "SPEED_MAX_AGE_S", "SPEED_SPAN_WARN_S", "find_drive_files", "frame_speeds",
            "last_speed", "read_frame_times", "read_truth"]
 
 #: The bundled sample drive (a simulated 12 s banked right-hand curve, 640x360 at 30 fps),
 #: rendered from ``configs/scenarios/sample_banked_curve.toml``.
 SAMPLE_DRIVE = Path(__file__).resolve().parent / "data" / "sample_drive"
+
+#: The file ``vifusion simulate`` writes first into its ``OUT.partial`` folder and removes just
+#: before renaming it: a ``.partial`` folder holding it is an unfinished simulation however early
+#: it was killed (a review's SIGKILL while the CAN log was written left ``can.asc`` alone, which
+#: the simulator then refused as not its own).
+SIMULATION_MARKER = ".vifusion-simulating"
 
 
 @dataclass(frozen=True)
@@ -57,7 +63,7 @@ def find_drive_files(root: str | Path) -> DriveFiles:
                          "writes; a single file goes with --video, --can, ...)")
     if not root.is_dir():
         raise InputError(f"{root}: no such drive folder")
-    if root.name.endswith(".partial") and (root / "imu_truth.csv").is_file():
+    if root.name.endswith(".partial") and any((root / n).is_file() for n in (SIMULATION_MARKER, "imu_truth.csv")):
         # a simulation killed before it renamed its folder: its frames stop where it was (a
         # review ran one with 47 of 90 frames, a warning the only sign)
         raise InputError(f"{root}: an unfinished simulation (still named .partial): simulate the drive again")

@@ -172,6 +172,10 @@ def test_bad_scenario_is_one_line_naming_the_key(tmp_path, edit, key):
     ("manoeuvre", "repeat = 100000\nperiod_m = 10", "repeat"),              # did not finish
     ("manoeuvre", "shift_m = 10.5\nrepeat = 12\nperiod_m = 21", "manoeuvre"), # 92.7 m, adding up
     ("scenario", "seed = 18446744073709551615", "seed"),                    # 2^64 - 1: the renderer's traceback
+    # a review's cosmetic findings (session 29): each was exit 0 or named the wrong key
+    ("segment", "curvature_1_m = -0.005\nradius_m = -200", "radius_m and curvature_1_m both given"),
+    ("video", "fps = 0.1", "fps = 0.1 gives no frame in the 2 s"),           # 2 s at 0.1 fps: no frame, exit 0
+    ("scenario", 'name = "two\\nlines"', "name must not hold control characters"),   # broke the summary line
 ])
 def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
     """Checked when the scenario is read, each a one-line error naming its key."""
@@ -182,6 +186,10 @@ def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
     src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
     if table == "segment":
         bad = src.replace("curvature_1_m = -0.005", edit, 1)
+    elif table == "video" and edit.startswith("fps"):
+        bad = src.replace("fps = 15.0", edit, 1)
+    elif table == "scenario" and edit.startswith("name"):
+        bad = src.replace('name = "tiny_banked_curve"', edit, 1)
     elif table == "scenario":
         bad = src.replace("seed = 5\n", edit + "\n", 1)
     elif table == "manoeuvre":
@@ -198,14 +206,28 @@ def test_out_of_range_scenario_values_are_named(tmp_path, table, edit, key):
     assert "\n" not in str(e.value)
 
 
+def test_a_key_before_any_table_is_named_as_such(tmp_path):
+    """A scenario without its ``[scenario]`` header: its keys are at the top level, and the error
+    said "[name] is not a known table" (a review)."""
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    p = tmp_path / "headless.toml"
+    p.write_text(src.replace("[scenario]\n", "", 1))
+    r = vifusion("simulate", p, "--out", tmp_path / "out")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "name is given before any [table] header" in r.stderr and "not a known table" not in r.stderr, r.stderr
+
+
 def test_missing_scenario_file(tmp_path):
     r = vifusion("simulate", tmp_path / "nope.toml", "--out", tmp_path / "out")
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "nope.toml" in r.stderr
 
 
-def test_negative_frame_count_is_one_line(tmp_path):
-    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "out", "--frames", "-1")
-    assert r.returncode == 2 and r.stderr.strip() == "error: --frames must be >= 0, got -1", r.stderr
+@pytest.mark.parametrize("n", [-1, 0])
+def test_a_frame_count_under_one_is_one_line(tmp_path, n):
+    """``--frames 0`` wrote a drive of no frames and no video, exit 0 (a review)."""
+    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "out", "--frames", n)
+    assert r.returncode == 2 and r.stderr.strip() == f"error: --frames must be >= 1 (a drive needs frames), got {n}", \
+        r.stderr
     assert not (tmp_path / "out").exists()
 
 
@@ -346,3 +368,133 @@ def test_the_configs_start_time_is_the_first_frames_stamp(tmp_path):
     cfg = load_config(tmp_path / "d" / "config.toml")
     assert frames["t_s"].iloc[0] - truth["t_s"].iloc[0] == pytest.approx(0.05, abs=1e-9)
     assert cfg.video.start_s == pytest.approx(frames["t_s"].iloc[0], abs=1e-9)
+
+
+@pytest.mark.parametrize("edits, named", [
+    # each value within its key's range, the drive beyond what a vehicle or the IMU does (a review:
+    # exit 0, and the CAN log held the DBC's 4.18 g for the truth's 6.1 g on 185 of 201 samples)
+    ({"curvature_1_m = -0.005": "curvature_1_m = -0.02", "speed_kmh = 72": "speed_kmh = 200"},
+     ("would lean 7", "beyond the 60 deg", "speed_kmh")),
+    ({"curvature_1_m = -0.005": "curvature_1_m = 0.2", "speed_kmh = 72": "speed_kmh = 400"},
+     ("would lean", "beyond the 60 deg", "curvature_1_m")),
+    ({'vehicle = "motorcycle"': 'vehicle = "car"', "curvature_1_m = -0.005": "curvature_1_m = -0.02",
+      "speed_kmh = 72": "speed_kmh = 100"},
+     ("car's tyres would take a side force of 1.", "beyond the 1 g")),
+    ({"gyro_bias_deg_s = [0.2,": "gyro_bias_deg_s = [200.0,"},
+     ("gyro_x", "reaches 2", "-163.8 to 163.8 deg/s", "IMU_RATE.RateX", "[imu] gyro_bias_deg_s")),
+    ({"gyro_bias_deg_s = [0.2, -0.15, 0.3]": "accel_bias_m_s2 = [50, 0, 0]"},
+     ("accel_x", "reaches 50.", "-40.96 to 40.92 m/s^2", "IMU_ACC.AccX", "[imu] accel_bias_m_s2")),
+])
+def test_a_drive_no_vehicle_or_imu_could_give_is_refused_before_writing(tmp_path, edits, named):
+    """A motorcycle leaning beyond 60 deg, a car's tyres beyond 1 g of side force, or an IMU
+    channel (bias and noise included) beyond its DBC signal's range: one line naming the value,
+    the limit and the key to change, exit 2, and no folder (checked before anything is written)."""
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    for old, new in edits.items():
+        assert old in src
+        src = src.replace(old, new)
+    p = tmp_path / "extreme.toml"
+    p.write_text(src)
+    out = tmp_path / "drive"
+    r = vifusion("simulate", p, "--out", out, "--no-video", "--quiet")
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in r.stderr, r.stderr
+    for text in named:
+        assert text in lines[0], lines[0]
+    assert not out.exists() and not out.with_name("drive.partial").exists()
+
+
+@pytest.mark.parametrize("width, height, codec, text", [
+    (321, 181, "mp4v", "the mp4v codec writes even sizes only (it would write 320x180 frames"),   # it did, exit 0
+    (321, 180, "ffv1", "the ffv1 codec writes even sizes only (it would write 320x180 frames"),
+    (320, 181, "mjpg", "the mjpg codec writes even sizes only (it would write 320x180 frames"),
+    (1, 1, "mp4v", "renders 64 to 4096 px a side"),          # was "OpenCV cannot write mp4v video"
+    (20000, 20000, "png", "renders 64 to 4096 px a side"),   # was a traceback allocating 2.98 GiB
+    (4098, 2304, "mp4v", "renders 64 to 4096 px a side"),
+])
+def test_a_frame_size_the_codec_or_the_memory_cannot_take_is_refused(tmp_path, width, height, codec, text):
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    p = tmp_path / "size.toml"
+    p.write_text(src.replace("width = 320\nheight = 180", f"width = {width}\nheight = {height}", 1)
+                 .replace("[video]\n", f'[video]\ncodec = "{codec}"\n', 1))
+    r = vifusion("simulate", p, "--out", tmp_path / "drive", "--frames", 1, "--quiet")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and text in r.stderr, r.stderr
+    assert f"{width}x{height}" in r.stderr and not list(tmp_path.glob("drive*"))
+
+
+def test_png_frames_keep_an_odd_size_the_config_gives(tmp_path):
+    """PNG frames are written at any size: 321x181 frames, as the config says (the video
+    codecs' even sizes are refused above)."""
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    p = tmp_path / "odd.toml"
+    p.write_text(src.replace("width = 320\nheight = 180", "width = 321\nheight = 181", 1)
+                 .replace("[video]\n", '[video]\ncodec = "png"\n', 1))
+    r = vifusion("simulate", p, "--out", tmp_path / "drive", "--frames", 2, "--quiet")
+    assert r.returncode == 0, r.stderr
+    cfg = load_config(tmp_path / "drive" / "config.toml")
+    frames = sorted((tmp_path / "drive" / "video").glob("*.png"))
+    assert len(frames) == 2 and cv2.imread(str(frames[0])).shape[:2] == (cfg.camera.height, cfg.camera.width) == (181, 321)
+
+
+def test_running_out_of_memory_is_one_line_and_leaves_no_folder(tmp_path, monkeypatch, capsys):
+    """A frame too large for the machine's memory (numpy's ``_ArrayMemoryError``, a traceback
+    in a review's 20000x20000 PNG drive) is one line, exit 2, and no ``OUT`` or ``OUT.partial``."""
+    from drivesim import drive as drive_mod
+
+    from fusion import cli
+
+    def no_memory(*args, **kwargs):
+        raise MemoryError("Unable to allocate 2.98 GiB for an array with shape (20000, 20000)")
+        yield
+
+    monkeypatch.setattr(drive_mod, "render_frames", no_memory)
+    out = tmp_path / "drive"
+    assert cli.main(["simulate", str(TEST_SCENARIOS / "tiny_banked_curve.toml"), "--out", str(out), "--frames", "1",
+                     "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and "out of memory simulating 320x180 frames" in err, err
+    assert not out.exists() and not out.with_name("drive.partial").exists()
+
+
+def test_a_simulation_killed_while_writing_its_can_log_is_simulated_again(tmp_path):
+    """SIGKILL while the CAN log is written left ``OUT.partial`` holding ``can.asc`` alone, and
+    the next ``simulate`` refused it as not an unfinished simulation's folder (a review): the
+    folder's first file is now a marker, so the same command finishes the drive. A folder of
+    that name holding a user's ``can.asc`` alone is still refused, untouched, and ``run
+    --drive`` refuses the killed one as unfinished."""
+    import os
+    import shutil
+    import signal
+    import time
+
+    src = (TEST_SCENARIOS / "tiny_banked_curve.toml").read_text()
+    long = tmp_path / "long.toml"
+    long.write_text(src.replace("duration_s = 2.0", "duration_s = 20.0", 1))
+    out = tmp_path / "drive"
+    partial = out.with_name("drive.partial")
+    p = subprocess.Popen([sys.executable, "-m", "fusion", "simulate", str(long), "--out", str(out), "--quiet",
+                          "--no-video"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (partial / "can.asc").is_file() and p.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.002)
+    os.kill(p.pid, signal.SIGKILL)
+    p.communicate(timeout=60)
+    left = sorted(q.name for q in partial.iterdir())
+    assert "can.asc" in left and "imu_truth.csv" not in left, left   # killed during the CAN log, as in the review
+    shutil.copytree(partial, tmp_path / "copy.partial")
+    r = vifusion("simulate", long, "--out", out, "--quiet", "--no-video")
+    assert r.returncode == 0, r.stderr
+    assert (out / "imu_truth.csv").is_file() and not partial.exists()
+    assert not [q.name for q in out.iterdir() if q.name.startswith(".")]     # the marker goes before the rename
+    assert len(pd.read_csv(out / "imu_truth.csv")) == 2001      # 20 s at 100 Hz, both ends
+    r = vifusion("run", "--drive", tmp_path / "copy.partial", "--out", tmp_path / "run")
+    assert r.returncode == 2 and "unfinished simulation" in r.stderr, r.stderr
+
+    mine = tmp_path / "mine.partial"
+    mine.mkdir()
+    (mine / "can.asc").write_text("precious")
+    r = vifusion("simulate", TEST_SCENARIOS / "tiny_banked_curve.toml", "--out", tmp_path / "mine", "--no-video")
+    assert r.returncode == 2 and "is not an unfinished simulation's folder" in r.stderr, r.stderr
+    assert (mine / "can.asc").read_text() == "precious" and sorted(mine.iterdir()) == [mine / "can.asc"]

@@ -173,6 +173,20 @@ def test_steady_turn_lean_and_specific_force():
     assert f[2] == pytest.approx(math.hypot(GRAVITY_M_S2, v_h**2 * k), rel=1e-3)
 
 
+def test_side_grip_is_the_turn_less_the_bank_and_the_motorcycles_lean():
+    """The side force the tyres take (the simulator's limits rest on it, ``drivesim.drive``): in
+    a steady left turn banked 5 deg into it, ``atan(grip)`` is the level lean ``atan(v^2 k / g)``
+    less the bank (0.02 deg: the 2 % grade, as above), and the motorcycle, with no pitch or yaw,
+    leans to the road by exactly ``atan(grip)`` (to the left: negative roll)."""
+    traj = motorcycle(manoeuvres=(), pitch_amplitude_deg=0.0, lateral_offset_m=0.0)
+    t = np.array([8.4])  # station 240 m: on the 1/250 arc, bank -5 deg, grade 2 %
+    pose, grip = traj.pose(t), traj.side_grip(t)[0]
+    v_h = pose["speed_m_s"][0] / math.sqrt(1 + 0.02**2)
+    level_deg = math.degrees(math.atan(v_h**2 / 250 / GRAVITY_M_S2))
+    assert math.degrees(math.atan(grip)) == pytest.approx(level_deg - 5.0, abs=0.02)
+    assert math.tan(-pose["roll"][0]) == pytest.approx(grip, rel=1e-9)
+
+
 def test_curvature_is_smooth_across_clothoid_joints():
     """The road's curvature is the derivative of its heading, and its slope has no corner where
     transitions meet arcs and straights (:func:`drivesim.road.ease`): a plain clothoid's has one,

@@ -30,12 +30,18 @@ def run(args: argparse.Namespace) -> int:
     from . import settle_heap
 
     settle_heap()
-    if args.frames is not None and args.frames < 0:
-        raise InputError(f"--frames must be >= 0, got {args.frames}")
+    if args.frames is not None and args.frames < 1:    # 0 wrote a drive of no frames, exit 0
+        raise InputError(f"--frames must be >= 1 (a drive needs frames), got {args.frames}")
     scenario = load_scenario(args.scenario)
     t0 = time.perf_counter()
-    files = simulate(scenario, args.out, progress=not args.quiet, max_frames=args.frames,
-                     render_video=not args.no_video, overwrite=args.force)
+    try:
+        files = simulate(scenario, args.out, progress=not args.quiet, max_frames=args.frames,
+                         render_video=not args.no_video, overwrite=args.force)
+    except MemoryError:
+        # numpy's 'Unable to allocate' was a traceback (a review); simulate() removed its folder
+        raise InputError(f"{args.scenario}: out of memory simulating {scenario.camera.width}x{scenario.camera.height}"
+                         f" frames over {scenario.duration_s:g} s: smaller [camera] width and height, or a shorter "
+                         "drive") from None
     n = scenario.n_frames if args.frames is None else min(args.frames, scenario.n_frames)
     video = ("no video" if args.no_video else
              f"{n} frames {scenario.camera.width}x{scenario.camera.height} @ {scenario.video.fps:g} fps")

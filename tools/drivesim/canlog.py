@@ -37,7 +37,7 @@ import cantools
 import numpy as np
 import pandas as pd
 
-__all__ = ["DBC_PATH", "ACC_DELAY_S", "LOG_FORMATS", "signal_map", "write_can_log", "clock_offset_s"]
+__all__ = ["DBC_PATH", "ACC_DELAY_S", "LOG_FORMATS", "signal_map", "imu_ranges", "write_can_log", "clock_offset_s"]
 
 #: The simulator's DBC; the simulator copies it next to the log.
 DBC_PATH = Path(__file__).resolve().parent / "data" / "vifusion_imu.dbc"
@@ -61,6 +61,23 @@ def signal_map(include_pitch_rate: bool = True) -> dict[str, str]:
     if not include_pitch_rate:
         del m["gyro_y"]
     return m
+
+
+def imu_ranges(dbc_path=None, include_pitch_rate: bool = True) -> dict[str, tuple[float, float, str]]:
+    """What each column of :func:`write_can_log`'s ``imu`` table can carry: ``(low, high,
+    signal)``, the DBC range of its signal in the table's units (rad/s, m/s^2) and the signal's
+    ``MESSAGE.SIGNAL``. A value at either end or beyond is written as that end (saturated,
+    :func:`_encode`); without the pitch rate ``gyro_y_rad_s`` is not sent and not listed."""
+    db = cantools.database.load_file(dbc_path or DBC_PATH)
+    out = {}
+    for col, name in zip(_IMU_COLUMNS, ("RateX", "RateY", "RateZ", "AccX", "AccY", "AccZ")):
+        if col == "gyro_y_rad_s" and not include_pitch_rate:
+            continue
+        msg = db.get_message_by_name("IMU_RATE" if col.startswith("gyro") else "IMU_ACC")
+        sig = msg.get_signal_by_name(name)
+        to_si = math.radians(1.0) if col.startswith("gyro") else _G    # as _imu_frames encodes them
+        out[col] = (sig.minimum * to_si, sig.maximum * to_si, f"{msg.name}.{name}")
+    return out
 
 
 def _crc8_j1850(data: bytes) -> int:

@@ -15,7 +15,8 @@ Files in the output folder:
 * ``scenario.toml``: the scenario it came from; ``preview.png``: the first frame.
 
 The folder is written as ``<out>.partial`` and renamed when complete, so an interrupted run
-never leaves a drive that looks whole.
+never leaves a drive that looks whole; its first file, :data:`fusion.drive.SIMULATION_MARKER`
+(removed before the rename), tells a later run that the folder is an unfinished simulation's.
 """
 
 from __future__ import annotations
@@ -31,13 +32,14 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from fusion.errors import InputError
+from fusion.drive import SIMULATION_MARKER
+from fusion.errors import ConfigError, InputError
 
 from .imu_model import simulate_imu
 from .render import Renderer
 from .road import Road, Segment
 from .scenario import Scenario
-from .trajectory import Trajectory
+from .trajectory import MAX_CAR_SIDE_GRIP, MAX_LEAN_DEG, Trajectory
 
 __all__ = ["DriveFiles", "SIM_ATTITUDE_WALK_DEG_SQRT_S", "build_road", "render_frames", "simulate", "truth_frame"]
 
@@ -226,17 +228,22 @@ def simulate(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
                              "replaces only a simulated drive")
     tmp = out_dir.with_name(out_dir.name + ".partial")
     if tmp.is_file() or (tmp.is_dir() and any(tmp.iterdir()) and (
-            any(not _simulator_wrote(p.name) for p in tmp.iterdir()) or not (tmp / "imu_truth.csv").is_file())):
-        # an unfinished simulation's folder is replaced (empty, or with the IMU truth only a
-        # simulation writes); a user's of that name is not (a review: 'mydata.partial/notes.txt',
-        # and a folder holding only a config.toml, were deleted without a word)
+            any(not _simulator_wrote(p.name) for p in tmp.iterdir())
+            or not any((tmp / n).is_file() for n in (SIMULATION_MARKER, "imu_truth.csv")))):
+        # an unfinished simulation's folder is replaced (empty, or with the marker written first,
+        # or the IMU truth, of a simulation from before the marker); a user's of that name is
+        # not (a review: 'mydata.partial/notes.txt', and a folder holding only a config.toml,
+        # were deleted without a word)
         raise InputError(f"{tmp} exists and is not an unfinished simulation's folder: move it, or give "
                          "another --out")
+    plan = _plan(scenario)      # nothing touched yet: a drive no vehicle or IMU could give is refused here
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
     try:
-        _simulate_into(scenario, tmp, progress=progress, max_frames=max_frames, render_video=render_video)
+        (tmp / SIMULATION_MARKER).write_text("an unfinished 'vifusion simulate': simulate the drive again\n")
+        _simulate_into(scenario, plan, tmp, progress=progress, max_frames=max_frames, render_video=render_video)
+        (tmp / SIMULATION_MARKER).unlink()
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)    # no half drive left to look like one
         raise
@@ -254,31 +261,121 @@ _SIMULATED_ONLY = ("imu_truth.csv", "truth_frames.csv")
 def _simulator_wrote(name: str) -> bool:
     """Whether a file of this name is one :func:`simulate` writes."""
     return (name in {"frames.csv", "config.toml", "truth.csv", "truth_frames.csv", "imu_truth.csv", "scenario.toml",
-                     "preview.png", *VIDEO_NAMES.values()}
+                     "preview.png", SIMULATION_MARKER, *VIDEO_NAMES.values()}
             or name.startswith("can.") or name.endswith(".dbc"))
 
 
-def _simulate_into(scenario: Scenario, tmp: Path, *, progress: bool, max_frames: int | None,
+@dataclass(frozen=True)
+class _Plan:
+    """What a drive is, computed before anything is written: the motion, the IMU's samples and
+    the truth (the frames alone are rendered while writing). ``rng`` goes on to the frames."""
+
+    road: Road
+    traj: Trajectory
+    rng: np.random.Generator
+    imu_meas: pd.DataFrame
+    speed: pd.DataFrame
+    imu_true: pd.DataFrame
+    t_truth: np.ndarray
+    truth: pd.DataFrame     # at t_truth, in drive time
+
+
+def _plan(scenario: Scenario) -> _Plan:
+    """The drive's motion and IMU, refused (:class:`ConfigError`, one line) where no vehicle
+    could drive it or the simulated IMU's CAN signals could not carry it (a review: 200 km/h on a
+    50 m radius leaned 81 deg and its 6.1 g were clipped at the DBC's 4.18 g without a word)."""
+    rng = np.random.default_rng(scenario.seed)
+    road = build_road(scenario)
+    traj = Trajectory(road, scenario.motion)
+    t_truth = np.arange(int(math.floor(scenario.duration_s * scenario.truth_rate_hz + 1e-9)) + 1) / scenario.truth_rate_hz
+    truth = truth_frame(traj, t_truth, t_truth)
+    _check_vehicle_limits(scenario, traj, truth)
+    imu_meas, speed, imu_true = simulate_imu(traj, scenario.imu, scenario.duration_s, rng)
+    _check_imu_range(scenario, imu_meas, imu_true)
+    return _Plan(road, traj, rng, imu_meas, speed, imu_true, t_truth, truth)
+
+
+def _check_vehicle_limits(scenario: Scenario, traj: Trajectory, truth: pd.DataFrame) -> None:
+    """A motorcycle leaning beyond :data:`MAX_LEAN_DEG` to the road, or a car whose tyres would
+    take more than :data:`MAX_CAR_SIDE_GRIP` of side force, at any of the truth's times."""
+    if scenario.motion.vehicle == "motorcycle":
+        value, bound = np.abs(truth["roll_deg"].to_numpy()), MAX_LEAN_DEG
+        what = "the motorcycle would lean {:.0f} deg to the road".format
+        limit = (f"beyond the {MAX_LEAN_DEG:g} deg a motorcycle's tyres hold (a side force of "
+                 f"tan({MAX_LEAN_DEG:g} deg) = {math.tan(math.radians(MAX_LEAN_DEG)):.2f} times the load)")
+    else:
+        value, bound = np.abs(traj.side_grip(truth["t_s"].to_numpy())), MAX_CAR_SIDE_GRIP
+        what = "the car's tyres would take a side force of {:.2f} g".format
+        limit = f"beyond the {MAX_CAR_SIDE_GRIP:g} g a car's road tyres hold"
+    if not np.any(value > bound):
+        return
+    i = int(np.argmax(np.nan_to_num(value, posinf=np.finfo(float).max)))
+    k = float(truth["curvature_1_m"].iloc[i])
+    road = f"a {1.0 / abs(k):.0f} m radius" if abs(k) > 1e-9 else "a straight"
+    where = f"at {truth['t_s'].iloc[i]:.2f} s, {truth['speed_m_s'].iloc[i] * 3.6:.0f} km/h on {road}"
+    change = ("[motion] speed_profile" if scenario.motion.speed_profile else "[motion] speed_kmh") + \
+        " or the road's curvature ([[road.segment]] curvature_1_m or radius_m)"
+    if scenario.motion.manoeuvres:
+        change += " or the manoeuvres ([[motion.manoeuvre]] a longer length_m, a smaller shift_m)"
+    shown = what(float(value[i])) if np.isfinite(value[i]) else "the road would not carry the vehicle (it would take off)"
+    raise ConfigError(f"{scenario.source}: {shown} {where}, {limit}: lower {change}")
+
+
+def _check_imu_range(scenario: Scenario, measured: pd.DataFrame, truth: pd.DataFrame) -> None:
+    """An IMU channel (with its bias and noise) at or beyond the range its CAN signal carries,
+    which the log would hold as the range's end: named with its largest value, the range and
+    the scenario's key that puts it there (the motion, the bias or the noise, whichever is the
+    largest part of it)."""
+    from imu.config import ImuMount
+
+    from .canlog import DBC_PATH, imu_ranges
+
+    spec = scenario.imu
+    R_imu_from_v = ImuMount(spec.axes, spec.position_m).R_v_from_imu.T
+    for col, (lo, hi, signal) in imu_ranges(DBC_PATH, spec.pitch_rate).items():
+        v = measured[col].to_numpy()
+        out = (v <= lo) | (v >= hi)
+        if not np.any(out):
+            continue
+        kind, axis = col.split("_")[:2]
+        k = "xyz".index(axis)
+        unit = "rad_s" if kind == "gyro" else "m_s2"
+
+        def in_imu_axes(fmt):   # a truth column triple (vehicle frame) in the IMU's axes, axis k
+            return truth[[fmt.format(a) for a in "xyz"]].to_numpy() @ R_imu_from_v[k]
+
+        motion = in_imu_axes(f"{kind}_{{}}_{unit}")
+        bias = in_imu_axes(f"{kind}_bias_{{}}_{unit}")
+        parts = {"motion": np.max(np.abs(motion)), "bias": np.max(np.abs(bias)),
+                 "noise": np.max(np.abs(v - motion - bias))}
+        i = int(np.flatnonzero(out)[np.argmax(np.abs(v[out]))])
+        scale, shown = (math.degrees(1.0), "deg/s") if kind == "gyro" else (1.0, "m/s^2")
+        key = {"motion": "lower [motion] speed_kmh or the road's curvature, or a gentler manoeuvre",
+               "bias": f"a smaller [imu] {kind}_bias_{'deg_s' if kind == 'gyro' else 'm_s2'}"
+                       f" (or {kind}_bias_walk_{'deg_s_sqrt_s' if kind == 'gyro' else 'm_s2_sqrt_s'})",
+               "noise": f"a smaller [imu] {kind}_noise_{'deg_s' if kind == 'gyro' else 'm_s2'}"}
+        cause = max(parts, key=parts.get)
+        raise ConfigError(
+            f"{scenario.source}: the simulated IMU's {kind}_{axis} (its own axes) reaches {v[i] * scale:.4g} {shown} "
+            f"at {measured['t_s'].iloc[i]:.2f} s, beyond the {lo * scale:.4g} to {hi * scale:.4g} {shown} its CAN "
+            f"signal {signal} carries (the log would hold the range's end); of it the motion gives up to "
+            f"{parts['motion'] * scale:.3g}, the bias {parts['bias'] * scale:.3g}, the noise {parts['noise'] * scale:.3g}: "
+            f"{key[cause]}")
+
+
+def _simulate_into(scenario: Scenario, plan: _Plan, tmp: Path, *, progress: bool, max_frames: int | None,
                    render_video: bool) -> None:
     from .canlog import DBC_PATH, signal_map, write_can_log
 
     files = DriveFiles.in_dir(tmp, scenario.video.codec, scenario.can.format, DBC_PATH.name)
-
-    rng = np.random.default_rng(scenario.seed)
-    road = build_road(scenario)
-    traj = Trajectory(road, scenario.motion)
-
-    imu_meas, speed, imu_true = simulate_imu(traj, scenario.imu, scenario.duration_s, rng)
-    offset = write_can_log(files.can_log, imu_meas, speed, dbc_path=DBC_PATH,
+    road, traj, rng = plan.road, plan.traj, plan.rng
+    offset = write_can_log(files.can_log, plan.imu_meas, plan.speed, dbc_path=DBC_PATH,
                            start_epoch_s=scenario.can.start_epoch_s, extra_traffic=scenario.can.extra_traffic,
                            include_pitch_rate=scenario.imu.pitch_rate, seed=scenario.seed)
     shutil.copyfile(DBC_PATH, files.dbc)
-    imu_true = imu_true.assign(t_s=imu_true["t_s"] + offset)
+    imu_true = plan.imu_true.assign(t_s=plan.imu_true["t_s"] + offset)
     _write_table(imu_true, files.imu_truth)
-
-    t_truth = np.arange(int(math.floor(scenario.duration_s * scenario.truth_rate_hz + 1e-9)) + 1) / scenario.truth_rate_hz
-    _write_table(truth_frame(traj, t_truth, t_truth + offset), files.truth)
-
+    _write_table(plan.truth.assign(t_s=plan.t_truth + offset), files.truth)
     n = scenario.n_frames if max_frames is None else min(max_frames, scenario.n_frames)
     t_frames = scenario.video.start_s + np.arange(n) / scenario.video.fps
     tf = truth_frame(traj, t_frames, t_frames + offset)

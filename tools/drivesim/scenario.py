@@ -9,6 +9,7 @@ Every key is listed in the README ("Scenario files"; units are in the names, def
 from __future__ import annotations
 
 import math
+import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,6 +30,14 @@ __all__ = ["Scenario", "ImuSpec", "VideoSpec", "CanSpec", "load_scenario", "pars
 
 LOG_FORMATS = ("asc", "blf", "log", "trc", "csv", "mf4")
 CODECS = ("mp4v", "ffv1", "mjpg", "png")
+#: The frame sizes the simulator renders, px a side. At least 64: OpenCV's writers fail far below
+#: (mp4v and ffv1 refuse 1x1, MJPG's corrupted the heap and killed the process at 4x4), and the
+#: estimator finds nothing much below it (tiny_banked_curve over 4 s: no valid frame at 96x54,
+#: 5 % at 128x72, 12 % at 160x90), while a drive it fails on can still be made. At most 4096: a
+#: frame takes about 150 bytes a pixel to render (measured: float64 radiance, sub-pixel buffers,
+#: the sensor's noise), 2.5 GB at 4096x4096 (a review's 20000x20000 failed allocating 3 GiB),
+#: and mp4v writes at most 8190; the papers' cameras are 1920x1080 at most.
+FRAME_PX = (64, 4096)
 
 
 @dataclass(frozen=True)
@@ -103,6 +112,8 @@ class Scenario:
 
 def _segment(t: Table) -> Segment:
     length = t.get("length_m", "float", min=0.1)
+    if t.has("radius_m") and t.has("curvature_1_m"):    # one was named "not a known key"
+        raise t.error("radius_m", "and curvature_1_m both given: give one (curvature_1_m = 1 / radius_m)")
     if t.has("radius_m"):
         r = t.get("radius_m", "float")
         if r == 0:
@@ -148,6 +159,9 @@ def parse_scenario(data: dict, source: str) -> Scenario:
     """Build a :class:`Scenario` from parsed TOML; errors name ``source``, the table and key."""
     known = {"scenario", "camera", "mount", "road", "motion", "imu", "video", "can", "render", "truth"}
     for name in data:
+        if not isinstance(data[name], dict):   # a key before any [table] (it was "[name] is not a known table")
+            raise ConfigError(f"{source}: {name} is given before any [table] header: put it under its table "
+                              "(the file begins with [scenario])")
         if name not in known:
             raise ConfigError(f"{source}: [{name}] is not a known table (known: {', '.join(sorted(known))})")
 
@@ -156,6 +170,8 @@ def parse_scenario(data: dict, source: str) -> Scenario:
 
     sc = table("scenario")
     name = sc.get("name", "str", Path(source).stem)
+    if any(unicodedata.category(c) == "Cc" for c in name):   # a newline in it broke the summary line
+        raise sc.error("name", f"must not hold control characters (a newline, a tab), got {name!r}")
     duration = sc.get("duration_s", "float", min=0.1, max=3600.0)
     # numpy's generators take no negative seed, the renderer's compiled code none of 2^63 or more
     seed = sc.get("seed", "int", 0, min=0, max=2**63 - 1)
@@ -263,6 +279,7 @@ def parse_scenario(data: dict, source: str) -> Scenario:
         camera_time_offset_s=vi.get("camera_time_offset_s", "float", 0.0, min=-10.0, max=10.0),
     )
     vi.done()
+    _check_frame_size(camera, video.codec, source)
 
     cn = table("can")
     can = CanSpec(
@@ -293,12 +310,32 @@ def parse_scenario(data: dict, source: str) -> Scenario:
 
     if video.start_s >= duration:
         raise ConfigError(f"{source}: [video] start_s must be < [scenario] duration_s")
+    if math.floor((duration - video.start_s) * video.fps + 1e-9) < 1:    # was a drive of no frames, exit 0
+        raise ConfigError(f"{source}: [video] fps = {video.fps:g} gives no frame in the {duration - video.start_s:g} s "
+                          f"from [video] start_s to [scenario] duration_s: a drive needs frames (fps at least "
+                          f"{1.0 / (duration - video.start_s):.3g})")
     if imu.start_s >= duration:
         raise ConfigError(f"{source}: [imu] start_s must be < [scenario] duration_s")
     return Scenario(name=name, duration_s=duration, seed=seed, camera=camera, mount=mount,
                     markings=markings, segments=segments, motion=motion, imu=imu, video=video,
                     can=can, look=look, supersample=supersample, truth_rate_hz=truth_rate,
                     description=description, start=start, source=Path(source))
+
+
+def _check_frame_size(camera: Camera, codec: str, source: str) -> None:
+    """:data:`FRAME_PX`, and even sizes for the video codecs: mp4v, ffv1 and mjpg write an odd
+    width or height one pixel smaller (a review: 321x181 wrote 320x180 frames, and the config's
+    321x181 then failed ``vifusion vision``); PNG frames keep any size."""
+    size = f"[camera] width x height = {camera.width}x{camera.height}"
+    lo, hi = FRAME_PX
+    if not (lo <= camera.width <= hi and lo <= camera.height <= hi):
+        raise ConfigError(f"{source}: {size}: the simulator renders {lo} to {hi} px a side (the estimator finds "
+                          f"nothing on smaller frames; a larger one takes over 2.5 GB to render)")
+    if codec != "png" and (camera.width % 2 or camera.height % 2):
+        even = f"{camera.width - camera.width % 2}x{camera.height - camera.height % 2}"
+        raise ConfigError(f"{source}: {size}: the {codec} codec writes even sizes only (it would write {even} "
+                          f"frames, which the config would not describe): give an even width and height, or "
+                          f'[video] codec = "png"')
 
 
 def load_scenario(path: str | Path) -> Scenario:

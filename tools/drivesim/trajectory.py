@@ -41,9 +41,18 @@ from vision.frames import R_from_rpy, Rz, Ry, rpy_from_R, so3_log
 
 from .road import Road, smooth7
 
-__all__ = ["GRAVITY_M_S2", "Manoeuvre", "Motion", "Trajectory"]
+__all__ = ["GRAVITY_M_S2", "MAX_CAR_SIDE_GRIP", "MAX_LEAN_DEG", "Manoeuvre", "Motion", "Trajectory"]
 
 GRAVITY_M_S2 = 9.80665
+#: The largest lean of the simulated motorcycle relative to the road, deg. Its lean balances the
+#: side force its tyres take: a lean of 60 deg is tan(60 deg) = 1.73 times their load, about what
+#: racing slicks hold on dry asphalt (road tyres 1.0-1.3), and a road motorcycle grounds its
+#: footpegs before that. A scenario leaning further is no motorcycle's drive (a review's 200 km/h
+#: on a 50 m radius leaned 81 deg, 400 km/h on 5 m 85-101 deg).
+MAX_LEAN_DEG = 60.0
+#: The largest side force a car's tyres take, as a fraction of their load (:meth:`Trajectory.side_grip`):
+#: road tyres on dry asphalt hold about 1 g of lateral acceleration on a level road.
+MAX_CAR_SIDE_GRIP = 1.0
 
 
 @dataclass(frozen=True)
@@ -224,6 +233,17 @@ class Trajectory:
 
     def R_w_from_v(self, t):
         return self.pose(t)["R_w_from_v"]
+
+    def side_grip(self, t):
+        """The side force the tyres take as a fraction of their load: ``(f . y_o) / (f . z_o)``,
+        the specific force ``f = a + g z_w`` of the contact point's path across the road over
+        that along the road's normal (positive to the left; ``inf`` where the road does not
+        carry the vehicle, ``f . z_o <= 0``). ``v^2 k / g`` in a steady turn on a level road; a
+        bank towards the turn's centre lowers it."""
+        pose = self.pose(t)
+        f = pose["A_w"] + np.array([0.0, 0.0, GRAVITY_M_S2])
+        across, normal = np.sum(f * pose["R_w_from_o"][..., 1], -1), np.sum(f * pose["R_w_from_o"][..., 2], -1)
+        return np.where(normal > 0, across / np.where(normal > 0, normal, 1.0), np.inf)
 
     def body_rate_rad_s(self, t, h=1e-3):
         """Angular rate of ``v`` relative to the world, in ``v``: ``log(R(t-h)^T R(t+h)) / 2h``."""
