@@ -272,13 +272,23 @@ def too_few_valid(n_valid: int, n_frames: int) -> bool:
 def vision_warnings(video, vision: pd.DataFrame, stats: dict, n_listed: int, listed_by: str) -> list[str]:
     """What a command says of the vision's result: listed frames the video did not give
     (``stats``: :func:`vision.video.estimate_video`'s; ``listed_by`` says who listed them:
-    frames.csv, or the count of the video's frames), and a vision valid on under
+    frames.csv, or the count of the video's frames), pictures that could not be read (their
+    frames skipped, rows invalid), and a vision valid on under
     :data:`VISION_VALID_WARN` of its frames (none among none included), with the commonest
     reason."""
     out = []
     if stats.get("frames_missing"):
         out.append(f"{video}: {stats['frames_read']} frames could be read; {stats['frames_missing']} of the "
                    f"{n_listed} frames {listed_by} are not among them (not processed)")
+    n_bad = stats.get("frames_unreadable", 0)
+    if n_bad:
+        names: dict[str, list[str]] = {}
+        for name, why in stats["unreadable"]:
+            names.setdefault(why, []).append(name)
+        said = "; ".join(f"{', '.join(n)}{', ...' if n_bad > len(stats['unreadable']) else ''}: {why}"
+                         for why, n in names.items())
+        out.append(f"{video}: {n_bad} of the {n_listed} frames {listed_by} are pictures that could not be read "
+                   f"({said}): skipped, their rows invalid")
     n_valid = int(vision["valid"].sum()) if len(vision) else 0
     if too_few_valid(n_valid, len(vision)):
         reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts() if len(vision) else ()

@@ -318,7 +318,16 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         One row per processed frame, :data:`VISION_COLUMNS`.
     stats : dict
         ``frames_read`` (decoded), ``frames_missing`` (listed in ``frames`` but not in the video),
-        ``valid`` (count), ``median_ms``, ``workers`` (processes used), ``pieces``.
+        ``frames_unreadable`` (a folder's pictures that could not be read: their rows are invalid,
+        ``reason`` :data:`UNREADABLE_PICTURE` and why), ``unreadable`` (the first three of them:
+        ``(name, why)``), ``valid`` (count), ``median_ms``, ``workers`` (processes used), ``pieces``.
+
+    Raises
+    ------
+    VisionError
+        A source that cannot be read (:class:`FrameSource`), frames none of which has the
+        camera's size (:func:`check_frame_size`), a folder none of whose pictures to estimate
+        can be read (:func:`check_readable`).
     """
     import pandas as pd
     from tqdm import tqdm
@@ -328,6 +337,7 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
     want = {int(f): float(t) for f, t in zip(frames["frame"], frames["t_s"])}
     src = FrameSource(video, want)
     check_frame_size(src, camera)
+    check_readable(src, sorted(want))
     speeds = ({int(f): float(v) for f, v in zip(frames["frame"], frames["speed_m_s"])}
               if "speed_m_s" in frames else None)
     wanted = sorted(want)
@@ -350,9 +360,14 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         bar.close()
     table = pd.DataFrame(rows, columns=list(VISION_COLUMNS))
     done = set(table["frame"]) if len(table) else set()
+    unreadable = table.loc[table["reason"].str.startswith(UNREADABLE_PICTURE, na=False), ["frame", "reason"]]
     stats = {
         "frames_read": n_read,
         "frames_missing": sum(1 for f in want if f not in done),
+        "frames_unreadable": len(unreadable),
+        # the first few, for the warning: the picture's name and why it was not read
+        "unreadable": [(src.files[int(f)].name, r[len(UNREADABLE_PICTURE) + 2:])
+                       for f, r in unreadable.head(3).itertuples(index=False)],
         "valid": int(table["valid"].sum()) if len(table) else 0,
         "median_ms": float(table["estimator_ms"].median()) if len(table) else math.nan,
         "workers": workers,
@@ -392,42 +407,85 @@ def piece_count(n_frames: int, fps: float, warm_up: int) -> int:
     return max(1, min(by_length, n_frames // (warm_up + _MIN_PIECE)))
 
 
-def _read_picture(path: Path) -> np.ndarray:
-    """One picture of a frames folder, or :class:`VisionError` saying why not. What the
-    decoders print for a picture they cannot read goes with it (a review: libpng's "Read
-    Error" and OpenCV's "findDecoder" line came before the program's one-line error); what
-    they print for one they read is passed on."""
+#: ``reason`` of a frame whose picture could not be read (:func:`_decode_picture`): its row in
+#: ``vision.csv`` is invalid, the run goes on and counts it (``stats["frames_unreadable"]``).
+UNREADABLE_PICTURE = "unreadable picture"
+
+
+class UnreadablePicture(NamedTuple):
+    """A picture of a frames folder that could not be read, in its frame's place
+    (:func:`_frames_from` with ``unreadable=True``), and why (:func:`_decode_picture`)."""
+
+    path: Path
+    why: str
+
+
+def _decode_picture(path: Path) -> tuple[np.ndarray | None, str]:
+    """One picture of a frames folder, or None and why not. What the decoders print for a
+    picture they cannot read goes with it (a review: libpng's "Read Error" and OpenCV's
+    "findDecoder" line came before the program's one-line error); what they print for one
+    they read is passed on."""
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as e:
-        raise VisionError(f"{path}: not a readable picture ({e.strerror or e})") from None
+        return None, f"not a readable picture ({e.strerror or e})"
+    if not data.size:
+        return None, "not a readable picture (an empty file)"
     saved = os.dup(2)
     with tempfile.TemporaryFile() as said:
         os.dup2(said.fileno(), 2)          # the C libraries' own lines on stderr, for now
         try:
-            img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+            img = cv2.imdecode(data, cv2.IMREAD_COLOR)
         finally:
             os.dup2(saved, 2)
             os.close(saved)
         if img is None:
-            raise VisionError(f"{path}: not a readable picture")
+            return None, "not a readable picture"
         said.seek(0)
         text = said.read()
     if text:
         os.write(2, text)
-    return img
+    return img, ""
 
 
-def _frames_from(src: FrameSource, start: int, luma: bool = False) -> Iterator[tuple[int, np.ndarray]]:
+def check_readable(src: FrameSource, wanted: Iterable[int]) -> None:
+    """:class:`VisionError` when none of the pictures of the frames ``wanted`` can be read (a
+    folder's; a video is not checked): said before the first frame is estimated, and before a
+    debug video is begun. Pictures are read until one is: one picture on any folder that has a
+    readable one first. An unreadable picture among readable ones is a frame skipped, counted
+    and said (:func:`estimate_video`); it had ended the run with nothing written, a review: the
+    4000-picture folder with picture 3900 cut to 500 bytes, after 12 s of estimation."""
+    if src.files is None:
+        return
+    tried, first = 0, ""
+    for i in wanted:
+        f = src.files[i] if 0 <= i < len(src.files) else None
+        if f is None:
+            continue
+        img, why = _decode_picture(f)
+        if img is not None:
+            return
+        tried, first = tried + 1, first or f"{f.name}: {why}"
+    if tried:
+        raise VisionError(f"{src.path}: none of the {tried} pictures to estimate can be read (the first, {first})")
+
+
+def _frames_from(src: FrameSource, start: int, luma: bool = False,
+                 unreadable: bool = False) -> Iterator[tuple[int, np.ndarray | UnreadablePicture]]:
     """``(index, image)`` from frame ``start`` on. A video is positioned with a seek, checked:
     when the container cannot seek to the frame exactly, the frames before it are decoded and
-    dropped instead. ``luma``: a video's frames may come as grey pictures (:func:`_luma_frames`)."""
+    dropped instead. ``luma``: a video's frames may come as grey pictures (:func:`_luma_frames`).
+    A folder's picture that cannot be read is a :class:`VisionError`, or with ``unreadable`` an
+    :class:`UnreadablePicture` in its place."""
     if src.files is not None:
         for i in range(start, len(src.files)):
             f = src.files[i]
             if f is None:
                 continue          # a numbered picture missing: that frame is missing
-            yield i, _read_picture(f)
+            img, why = _decode_picture(f)
+            if img is None and not unreadable:
+                raise VisionError(f"{f}: {why}")
+            yield i, (UnreadablePicture(f, why) if img is None else img)
         return
     if luma:
         frames = _luma_frames(src.path, start)
@@ -582,11 +640,19 @@ def _estimate_piece(src: FrameSource, wanted: list[int], times: dict, setup, wri
     # the estimator's grey with a debug video too (it drew on OpenCV's colour frames, and the
     # estimator got their grey, a few levels off the luma: another run, 7 of 10 KITTI frames
     # valid against 2, a review); the debug video shows the grey the vision saw
-    for i, img in _frames_from(src, wanted[0] if wanted else 0, luma=True):
+    for i, img in _frames_from(src, wanted[0] if wanted else 0, luma=True, unreadable=True):
         n_read = i + 1
         if i > last:
             break
         if i not in wanted_set:
+            continue
+        if isinstance(img, UnreadablePicture):
+            # skipped: an invalid row that says why; the estimator's state and the distance
+            # travelled carry over to the next frame, as over a missing picture
+            rows.append(vision_row(times[i], i, VisionEstimate.invalid(f"{UNREADABLE_PICTURE}: {img.why}",
+                                                                        est.options.method)))
+            if len(rows) > warm and tick is not None:
+                tick(1)
             continue
         travel = _travel_m(speeds, times, last_done, i)
         last_done = i
