@@ -140,6 +140,52 @@ def test_a_folder_of_unreadable_pictures_is_a_one_line_error(drive, tmp_path, ca
     assert not list(tmp_path.glob("v.csv*"))
 
 
+def test_a_damaged_jpeg_is_an_unreadable_picture(drive, tmp_path, capfd):
+    """JPEG 0002's entropy-coded data from its middle on overwritten (its end marker kept), as a
+    review did: OpenCV returns a picture, grey or garbled below the damage, and libjpeg prints
+    "Corrupt JPEG data: premature end of data segment" naming no file; 8 of 11 such frames had
+    stayed valid, roll up to 0.24 deg off. Now it is an unreadable picture (F1's skip), the
+    libjpeg line in its reason and the warning, not raw on stderr."""
+    root, _ = drive
+    pictures = _copy_frames(root, tmp_path / "frames", ".jpg")
+    data = bytearray(pictures[2].read_bytes())
+    data[len(data) // 2:-2] = b"\x55" * (len(data) - 2 - len(data) // 2)
+    pictures[2].write_bytes(bytes(data))
+    assert cv2.imread(str(pictures[2])) is not None     # OpenCV alone takes it for a picture
+    capfd.readouterr()
+    out = tmp_path / "v.csv"
+    rc = main(["vision", "--video", str(tmp_path / "frames"), "--frames", str(root / "frames.csv"),
+               "--config", str(root / "config.toml"), "--out", str(out), "--quiet", "--workers", "1"])
+    said = capfd.readouterr()
+    assert rc == 0, said.err
+    v = pd.read_csv(out)
+    assert list(v["valid"]) == [1, 1, 0, 1, 1]
+    assert v["reason"][2].startswith("unreadable picture: damaged JPEG data (libjpeg: Corrupt JPEG data")
+    assert any("0002.jpg" in line and "damaged JPEG data" in line for line in said.err.splitlines()), said.err
+    assert all(line.startswith("warning: ") for line in said.err.splitlines()), said.err
+
+
+def test_which_libjpeg_lines_are_damage(tmp_path, capfd):
+    """libjpeg's "N extraneous bytes before marker" for a few bytes (an encoder's padding: the
+    picture decodes whole) is not damage; thousands of them, left by junk in the data (100 zero
+    bytes in the middle of a picture: 1619 here), and its other "Corrupt JPEG data" and
+    "Premature end" lines are."""
+    from vision.video import _damage, _decode_picture
+
+    assert not _damage("Corrupt JPEG data: 1 extraneous bytes before marker 0xd9")
+    assert _damage("Corrupt JPEG data: 1619 extraneous bytes before marker 0xd9")
+    assert _damage("Corrupt JPEG data: premature end of data segment")
+    assert _damage("Corrupt JPEG data: bad Huffman code")
+    assert _damage("Premature end of JPEG file")
+    assert not _damage("libpng warning: iCCP: known incorrect sRGB profile")
+    img = (np.random.default_rng(0).random((180, 320, 3)) * 255).astype(np.uint8)
+    data = cv2.imencode(".jpg", img)[1].tobytes()
+    mid = len(data) // 2
+    (tmp_path / "junk.jpg").write_bytes(data[:mid] + bytes(100) + data[mid + 100:])
+    got, why = _decode_picture(tmp_path / "junk.jpg")
+    assert got is None and "extraneous bytes" in why and capfd.readouterr().err == ""
+
+
 def test_frame_source_order_and_errors(tmp_path):
     for name in ("b.png", "a.jpg", "c.txt"):
         img = np.full((4, 6, 3), 7 if name.startswith("a") else 9, np.uint8)

@@ -420,11 +420,36 @@ class UnreadablePicture(NamedTuple):
     why: str
 
 
+#: Lines libjpeg prints for a JPEG whose data is damaged and that OpenCV still returns, the rest
+#: of the picture grey or garbled: the review's JPEGs with their second half overwritten gave
+#: "Corrupt JPEG data: premature end of data segment" and 8 of 11 stayed valid, roll up to 0.24
+#: deg off; junk in the middle of a random picture gives "... 1619 extraneous bytes before
+#: marker 0xd9". Such a picture is unreadable. Data that decodes in step despite damage says
+#: nothing and cannot be told from a picture.
+_DAMAGED_JPEG = ("Corrupt JPEG data", "Premature end of JPEG file")
+#: Extraneous bytes before a marker up to this many are an encoder's padding, not damage (the
+#: picture decodes whole): the line is passed on, with the file's name.
+_PADDING_BYTES = 16
+
+
+def _damage(line: str) -> bool:
+    """Whether a line libjpeg printed while decoding says the picture's data is damaged
+    (:data:`_DAMAGED_JPEG`; a few extraneous bytes, :data:`_PADDING_BYTES`, are not)."""
+    if not line.startswith(_DAMAGED_JPEG):
+        return False
+    words = line.split()
+    if "extraneous" in words:
+        n = words[words.index("extraneous") - 1]
+        return not (n.isdigit() and int(n) <= _PADDING_BYTES)
+    return True
+
+
 def _decode_picture(path: Path) -> tuple[np.ndarray | None, str]:
-    """One picture of a frames folder, or None and why not. What the decoders print for a
-    picture they cannot read goes with it (a review: libpng's "Read Error" and OpenCV's
-    "findDecoder" line came before the program's one-line error); what they print for one
-    they read is passed on."""
+    """One picture of a frames folder, or None and why not. What the decoders print goes with
+    the picture: for one that cannot be read, or whose JPEG data libjpeg says is damaged
+    (:func:`_damage`: then it is not read either, its line in the ``why``), it is dropped (a
+    review: libpng's "Read Error", OpenCV's "findDecoder" and libjpeg's "Corrupt JPEG data"
+    lines came raw, naming no file); the rest is passed on, each line after the file's name."""
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as e:
@@ -442,9 +467,12 @@ def _decode_picture(path: Path) -> tuple[np.ndarray | None, str]:
         if img is None:
             return None, "not a readable picture"
         said.seek(0)
-        text = said.read()
-    if text:
-        os.write(2, text)
+        lines = said.read().decode(errors="replace").splitlines()
+    damaged = [line for line in lines if _damage(line)]
+    if damaged:
+        return None, f"damaged JPEG data (libjpeg: {damaged[0].strip()})"
+    if lines:
+        os.write(2, "".join(f"{path}: {line}\n" for line in lines).encode())
     return img, ""
 
 
