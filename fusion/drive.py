@@ -347,36 +347,52 @@ def frames_skipped_warning(frames: pd.DataFrame, frames_name: str) -> str | None
 def frames_warnings(video: Path, frames: pd.DataFrame, frames_csv: Path | None, fps: float) -> list[str]:
     """What a command says of the frames it is to process, before the vision runs: with
     ``frames_csv``, its unlisted tail, its times against its frame numbers and frames it steps
-    over; without, a video that decodes to fewer frames than its container announces. The
-    container is read once for them all."""
+    over; without, a video that decodes to fewer frames than its container announces; either
+    way, a folder whose numbered names are not taken as frame numbers. The container and the
+    folder are read once for them all."""
+    from vision.errors import VisionError
+    from vision.video import FrameSource
+
     container = video_container(video)
+    try:
+        src = FrameSource(video, None if frames_csv is None else frames["frame"])
+    except VisionError:   # the vision's own reading says what is wrong
+        src = None
     if frames_csv is None:
         said = (video_cut_warning(video, len(frames), container),)
     else:
         name = str(frames_csv)
-        said = (frames_unlisted_warning(video, frames, name, fps, container),
+        said = (frames_unlisted_warning(video, frames, name, fps, container, src),
                 frames_spacing_warning(frames, name, container), frames_skipped_warning(frames, name))
+    said += (name_order_warning(src, frames_csv),)
     return [w for w in said if w]
 
 
+def name_order_warning(src, frames_csv: Path | None) -> str | None:
+    """A warning when a folder's pictures are named by numbers that are not taken as frame
+    numbers (:attr:`vision.video.FrameSource.name_order`), with how to give their times; None
+    otherwise. On KITTI's pictures 0-5, 25, 45, 65, 85 picture 25 had become frame 6, at 0.6 s
+    for 2.5 s, without a word (a review)."""
+    if src is None or src.name_order is None:
+        return None
+    timed = "at [video] start_s + frame / fps" if frames_csv is None else f"at the times {frames_csv} gives them"
+    return (f"{src.name_order}, {timed}: if the names are frame numbers, give each picture's time in a frames.csv "
+            "that lists them by number (frame = the name's number less the first's, t_s)")
+
+
 def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str, fps: float,
-                            container=None) -> str | None:
+                            container=None, src=None) -> str | None:
     """A warning when the video holds more than a second of frames after the last one that
     ``frames`` lists (a frames.csv cut short: the frames after it are not processed), or None.
     The video's length is its ``container``'s frame count (:func:`video_container`, read
-    without decoding; a folder's pictures); a video without one is not checked. The time a video frame takes is the
-    listed frames' (their time span over their number span: a listing of every n-th frame is
-    as good), or ``1 / fps`` when one frame is listed (``[video] fps``, the container's rate)."""
+    without decoding), or a folder's pictures (``src``: its :class:`vision.video.FrameSource`
+    with the frames listed); a video without one is not checked. The time a video frame takes
+    is the listed frames' (their time span over their number span: a listing of every n-th
+    frame is as good), or ``1 / fps`` when one frame is listed (``[video] fps``, the
+    container's rate)."""
     if not len(frames):
         return None
-    from vision.errors import VisionError
-    from vision.video import FrameSource
-
-    try:
-        src = FrameSource(video, frames["frame"])
-    except VisionError:   # the vision's own reading says what is wrong
-        return None
-    if src.files is not None:
+    if src is not None and src.files is not None:
         n_video = len(src.files)
     elif container is None:
         return None

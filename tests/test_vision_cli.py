@@ -377,6 +377,50 @@ def test_a_folder_of_every_third_frame_named_by_number(tmp_path):
     assert len(FrameSource(tmp_path)) == 10        # no listing: name order, as before
 
 
+def test_numbered_names_not_taken_as_frame_numbers_are_said(drive, tmp_path, capsys):
+    """The drive's five pictures named 0, 1, 2, 25, 45 (numbers that skip more values than there
+    are pictures): they are frames 0-4 in name order, as the README's rule says, and the run now
+    says so with how to give their times; listed by number in a frames.csv they are frames 0, 1,
+    2, 25, 45 and nothing is said. A review found picture 25 of KITTI's folder at 0.6 s for 2.5 s
+    without a word."""
+    root, _ = drive
+    (tmp_path / "frames").mkdir()
+    for f, n in zip(sorted((root / "frames").iterdir()), (0, 1, 2, 25, 45)):
+        shutil.copy(f, tmp_path / "frames" / f"{n:06d}.png")
+    out = tmp_path / "v.csv"
+    assert main(["vision", "--video", str(tmp_path / "frames"), "--config", str(root / "config.toml"),
+                 "--out", str(out), "--quiet", "--workers", "1"]) == 0
+    err = capsys.readouterr().err
+    said = [line for line in err.splitlines() if "not taken as frame numbers" in line]
+    assert len(said) == 1 and said[0].startswith("warning: ") and "(0 to 45)" in said[0], err
+    assert "frames 0 to 4 in name order" in said[0] and "frames.csv" in said[0]
+    assert list(pd.read_csv(out)["frame"]) == [0, 1, 2, 3, 4]
+    listed = tmp_path / "frames.csv"
+    pd.DataFrame({"frame": [0, 1, 2, 25, 45], "t_s": [0.0, 0.1, 0.2, 2.5, 4.5]}).to_csv(listed, index=False)
+    assert main(["vision", "--video", str(tmp_path / "frames"), "--frames", str(listed), "--config",
+                 str(root / "config.toml"), "--out", str(out), "--quiet", "--workers", "1"]) == 0
+    assert "not taken as frame numbers" not in capsys.readouterr().err
+    assert list(pd.read_csv(out)["t_s"]) == [0.0, 0.1, 0.2, 2.5, 4.5]
+
+
+def test_kittis_folder_in_name_order_is_said():
+    """The shared KITTI folder (pictures 0-5, 25, 45, 65, 85), read only: without frames.csv a
+    warning says its names are not taken as frame numbers; a frames.csv listing 0-9 (by
+    position) decides it, and nothing is said."""
+    from conftest import shared_data_dir
+
+    from fusion.drive import frames_warnings, read_frame_times
+    from fusion.config import VideoTiming
+
+    folder = shared_data_dir() / "kitti_2011_09_26_drive_0001" / "2011_09_26_drive_0001_sync" / "image_02" / "data"
+    if not folder.is_dir():
+        pytest.skip(f"{folder} not present")
+    frames = read_frame_times(None, VideoTiming(10.0, 0.0), count_frames(folder))
+    said = [w for w in frames_warnings(folder, frames, None, 10.0) if "not taken as frame numbers" in w]
+    assert len(said) == 1 and "(0 to 85)" in said[0] and "[video] start_s + frame / fps" in said[0], said
+    assert not [w for w in frames_warnings(folder, frames, Path("frames.csv"), 10.0) if "frame numbers" in w]
+
+
 def test_the_debug_video_is_the_tables_run(tmp_path):
     """With ``--debug-video`` the estimator gets the same grey as without (a video's luma
     plane): it had got OpenCV's colour frames' grey, a few levels off, and the table of a run

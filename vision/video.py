@@ -86,11 +86,14 @@ class FrameSource:
             raise VisionError(f"{self.path}: no such video file or folder")
         #: A folder's pictures by frame index (None where a numbered picture is missing).
         self.files: list[Path | None] | None = None
+        #: Why a folder's numbered names are not its frame numbers, when they are not and the
+        #: frame numbers listed did not decide it (:func:`_by_number`); None otherwise.
+        self.name_order: str | None = None
         if self.path.is_dir():
             files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
             if not files:
                 raise VisionError(f"{self.path}: folder has no .png or .jpg frames")
-            self.files = _by_number(files, None if listed is None else sorted(set(int(f) for f in listed)))
+            self.files, self.name_order = _by_number(files, None if listed is None else sorted(set(int(f) for f in listed)))
         else:
             cap = cv2.VideoCapture(str(self.path))
             ok = cap.isOpened()
@@ -123,7 +126,7 @@ class FrameSource:
 _MAX_NUMBERS_PER_PICTURE = 100
 
 
-def _by_number(files: list[Path], listed: list[int] | None = None) -> list[Path | None]:
+def _by_number(files: list[Path], listed: list[int] | None = None) -> tuple[list[Path | None], str | None]:
     """Pictures in name order, or, when every name is a frame number (``000123.png``), at their
     number less the first's: a picture missing from a numbered sequence is then a missing frame,
     not a shift of every later frame onto the time of the one before it. Names that are times
@@ -135,7 +138,11 @@ def _by_number(files: list[Path], listed: list[int] | None = None) -> list[Path 
     order picture k had taken frame k's time, a review found); positions it all names (and not
     all numbers) are name order. Otherwise numbers that skip at most as many values as there are
     pictures are frame numbers. Numbered names mixed with others are an error: in name order
-    every frame after a stray ``000040 - Copy.png`` took the picture before its own (a review)."""
+    every frame after a stray ``000040 - Copy.png`` took the picture before its own (a review).
+
+    Also returns, when numbered names are taken in name order by that rule (not by the listing),
+    a line that says so: on KITTI's pictures 0-5, 25, 45, 65, 85 picture 25 had silently become
+    frame 6, at 0.6 s for 2.5 s (a review); None otherwise."""
     digits = [p.stem.isdigit() for p in files]
     if any(digits) and not all(digits):
         odd = [p.name for p, d in zip(files, digits) if not d]
@@ -143,23 +150,29 @@ def _by_number(files: list[Path], listed: list[int] | None = None) -> list[Path 
                           f"({', '.join(odd[:3])}{', ...' if len(odd) > 3 else ''}): the frames' order is not "
                           "clear; remove or rename those")
     if not all(digits):
-        return files
+        return files, None
     numbers = [int(p.stem) for p in files]
     first, span = min(numbers), max(numbers) - min(numbers) + 1
-    if len(set(numbers)) < len(files) or span > _MAX_NUMBERS_PER_PICTURE * len(files):
-        return files
-    by_number = span <= 2 * len(files)
+    in_name_order = (f": they are not taken as frame numbers, the pictures are frames 0 to {len(files) - 1} in "
+                     "name order")
+    if len(set(numbers)) < len(files):
+        return files, f"{files[0].parent}: two or more of its pictures have one number" + in_name_order
+    by_number, decided = span <= 2 * len(files), False
     if listed:
         numbered = {n - first for n in numbers}
         as_numbers, as_positions = set(listed) <= numbered, listed[-1] < len(files) and listed[0] >= 0
         if as_numbers != as_positions:
-            by_number = as_numbers
+            by_number, decided = as_numbers, True
+    if by_number and span > _MAX_NUMBERS_PER_PICTURE * len(files):
+        by_number, decided = False, False       # as many slots as numbers: names that are times
     if not by_number:
-        return files
+        return files, None if decided else (f"{files[0].parent}: the numbers its {len(files)} pictures are named by "
+                                            f"({first} to {first + span - 1}) skip more values than there are "
+                                            "pictures" + in_name_order)
     out: list[Path | None] = [None] * span
     for p, n in zip(files, numbers):
         out[n - first] = p
-    return out
+    return out, None
 
 
 def count_frames(path: str | os.PathLike) -> int:
