@@ -421,6 +421,57 @@ def test_kittis_folder_in_name_order_is_said():
     assert not [w for w in frames_warnings(folder, frames, Path("frames.csv"), 10.0) if "frame numbers" in w]
 
 
+def _video_and_pictures(tmp_path: Path, fps: float = 15.0, n: int = 10) -> tuple[Path, Path]:
+    """The same ``n`` small frames as an AVI whose container says ``fps`` and as a folder of PNGs."""
+    video, folder = tmp_path / "v.avi", tmp_path / "pictures"
+    folder.mkdir()
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), fps, (64, 48))
+    for k in range(n):
+        img = np.full((48, 64, 3), 10 * k, np.uint8)
+        writer.write(img)
+        cv2.imwrite(str(folder / f"{k:06d}.png"), img)
+    writer.release()
+    return video, folder
+
+
+def test_a_config_fps_that_is_not_the_containers_is_said(tmp_path):
+    """A video whose container says 15 fps, timed without frames.csv by ``[video] fps = 30``:
+    every time was halved without a word, while the same mismatch through a frames.csv was
+    said (a review). Now the warning names both rates and which one times the frames; a config
+    that agrees says nothing, nor does 29.97 against 30 on a few frames (a thirtieth of a frame)."""
+    from fusion.config import VideoTiming
+    from fusion.drive import frames_warnings, read_frame_times
+
+    video, _ = _video_and_pictures(tmp_path)
+
+    def warned(fps):
+        frames = read_frame_times(None, VideoTiming(fps, 0.0), count_frames(video))
+        return [w for w in frames_warnings(video, frames, None, fps) if "[video] fps" in w]
+
+    said = warned(30.0)
+    assert len(said) == 1 and "[video] fps = 30 is not its container's 15 fps" in said[0], said
+    assert "timed at 30 fps" in said[0] and "0.3 s off" in said[0] and "frames.csv" in said[0]
+    assert warned(15.0) == []
+    (tmp_path / "ntsc").mkdir()
+    video, _ = _video_and_pictures(tmp_path / "ntsc", 29.97)
+    assert warned(30.0) == []
+
+
+def test_frame_times_in_ns_are_said_for_a_video_and_a_folder(tmp_path):
+    """frames.csv with times in nanoseconds read as seconds (t_s about 1.7e18): said for a
+    video only, by its container's rate; a folder of the same pictures took them silently (a
+    review). One check of the median period, for both, says it now."""
+    from fusion.drive import frames_warnings
+
+    video, folder = _video_and_pictures(tmp_path)
+    ns = pd.DataFrame({"frame": np.arange(10), "t_s": 1.7e18 + np.arange(10) * 1e9 / 15})
+    seconds = ns.assign(t_s=1.7e9 + np.arange(10) / 15)
+    for source in (video, folder):
+        said = [w for w in frames_warnings(source, ns, Path("frames.csv"), 30.0) if "no camera's" in w]
+        assert len(said) == 1 and "6.67e+07 s a frame" in said[0] and "ns given as seconds" in said[0], said
+        assert frames_warnings(source, seconds, Path("frames.csv"), 30.0) == []
+
+
 def test_the_debug_video_is_the_tables_run(tmp_path):
     """With ``--debug-video`` the estimator gets the same grey as without (a video's luma
     plane): it had got OpenCV's colour frames' grey, a few levels off, and the table of a run
