@@ -374,9 +374,9 @@ def frames_warnings(video: Path, frames: pd.DataFrame, frames_csv: Path | None, 
     """What a command says of the frames it is to process, before the vision runs: with
     ``frames_csv``, its unlisted tail, its times against its frame numbers and frames it steps
     over; without, a video that decodes to fewer frames than its container announces and a
-    ``fps`` (``[video] fps``) that is not its container's; either
-    way, a folder whose numbered names are not taken as frame numbers. The container and the
-    folder are read once for them all."""
+    ``fps`` (``[video] fps``) that is not its container's; either way, a folder whose numbered
+    names are not taken as frame numbers. The container and the folder are read once for them
+    all."""
     from vision.errors import VisionError
     from vision.video import FrameSource
 
@@ -386,7 +386,8 @@ def frames_warnings(video: Path, frames: pd.DataFrame, frames_csv: Path | None, 
     except VisionError:   # the vision's own reading says what is wrong
         src = None
     if frames_csv is None:
-        said = (video_cut_warning(video, len(frames), container), video_rate_warning(video, len(frames), fps, container))
+        said = (video_cut_warning(video, len(frames), container),
+                video_rate_warning(video, len(frames), fps, container))
     else:
         name = str(frames_csv)
         said = (frames_unlisted_warning(video, frames, name, fps, container, src),

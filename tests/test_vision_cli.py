@@ -94,6 +94,17 @@ def _copy_frames(root: Path, to: Path, ext: str = ".png") -> list[Path]:
     return out
 
 
+def _vision_of_folder(root: Path, tmp_path: Path, capfd):
+    """``vifusion vision`` of ``tmp_path / "frames"`` with the drive's frames.csv and config: the
+    table written and what was printed (exit 0 checked)."""
+    out = tmp_path / "v.csv"
+    rc = main(["vision", "--video", str(tmp_path / "frames"), "--frames", str(root / "frames.csv"),
+               "--config", str(root / "config.toml"), "--out", str(out), "--quiet", "--workers", "1"])
+    said = capfd.readouterr()
+    assert rc == 0, said.err
+    return pd.read_csv(out), said
+
+
 @pytest.mark.parametrize("bad", ["text", "cut", "empty", "dangling"])
 def test_an_unreadable_picture_is_a_frame_skipped_and_said(drive, tmp_path, capfd, bad):
     """Picture 0002 of five is text, a PNG cut to 500 bytes, an empty file or a link to nothing:
@@ -112,12 +123,7 @@ def test_an_unreadable_picture_is_a_frame_skipped_and_said(drive, tmp_path, capf
     else:
         pictures[2].unlink()
         pictures[2].symlink_to(tmp_path / "nowhere.png")
-    out = tmp_path / "v.csv"
-    rc = main(["vision", "--video", str(tmp_path / "frames"), "--frames", str(root / "frames.csv"),
-               "--config", str(root / "config.toml"), "--out", str(out), "--quiet", "--workers", "1"])
-    said = capfd.readouterr()
-    assert rc == 0, said.err
-    v = pd.read_csv(out)
+    v, said = _vision_of_folder(root, tmp_path, capfd)
     assert list(v["frame"]) == [0, 1, 2, 3, 4] and list(v["valid"]) == [1, 1, 0, 1, 1]
     assert v["reason"][2].startswith("unreadable picture") and np.isnan(v["roll_deg"][2])
     assert "1 unreadable picture(s) skipped" in said.out
@@ -153,12 +159,7 @@ def test_a_damaged_jpeg_is_an_unreadable_picture(drive, tmp_path, capfd):
     pictures[2].write_bytes(bytes(data))
     assert cv2.imread(str(pictures[2])) is not None     # OpenCV alone takes it for a picture
     capfd.readouterr()
-    out = tmp_path / "v.csv"
-    rc = main(["vision", "--video", str(tmp_path / "frames"), "--frames", str(root / "frames.csv"),
-               "--config", str(root / "config.toml"), "--out", str(out), "--quiet", "--workers", "1"])
-    said = capfd.readouterr()
-    assert rc == 0, said.err
-    v = pd.read_csv(out)
+    v, said = _vision_of_folder(root, tmp_path, capfd)
     assert list(v["valid"]) == [1, 1, 0, 1, 1]
     assert v["reason"][2].startswith("unreadable picture: damaged JPEG data (libjpeg: Corrupt JPEG data")
     assert any("0002.jpg" in line and "damaged JPEG data" in line for line in said.err.splitlines()), said.err

@@ -93,7 +93,8 @@ class FrameSource:
             files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
             if not files:
                 raise VisionError(f"{self.path}: folder has no .png or .jpg frames")
-            self.files, self.name_order = _by_number(files, None if listed is None else sorted(set(int(f) for f in listed)))
+            numbers = None if listed is None else sorted(set(int(f) for f in listed))
+            self.files, self.name_order = _by_number(files, numbers)
         else:
             cap = cv2.VideoCapture(str(self.path))
             ok = cap.isOpened()
