@@ -262,6 +262,28 @@ def video_cut_warning(video: Path, n_read: int, container) -> str | None:
 #: this fraction is said: times and frame numbers disagree there.
 FRAME_PERIOD_TOLERANCE = 0.5
 
+#: Median frame periods (s per frame number) a camera's may have: 10 kHz to a frame in 10 s.
+#: frames.csv's outside them are said: times in ms (33 "s" a frame) or in ns (1.7e18 "s" since
+#: 1970, 3.3e7 a frame) read as seconds; only a video's container rate had caught them (a review).
+CAMERA_PERIOD_S = (1e-4, 10.0)
+
+
+def video_rate_warning(video: Path, n_frames: int, fps: float, container) -> str | None:
+    """A warning when ``[video] fps``, which times the frames without frames.csv, is not the
+    rate of the video's ``container`` (:func:`video_container`): by the last of its ``n_frames``
+    frames their times have drifted more than one of its frames from the container's. A 15 fps
+    video with ``fps = 30`` had every time halved without a word, and the same mismatch through
+    a frames.csv was said (a review). NTSC's 29.97 fps given as 30 is said beyond 1000 frames."""
+    video_fps = container[1] if container is not None else None
+    if not video_fps or not fps > 0 or n_frames < 2:
+        return None
+    drift_s = (n_frames - 1) * abs(1.0 / fps - 1.0 / video_fps)
+    if drift_s * video_fps <= 1.0:
+        return None
+    return (f"{video}: [video] fps = {fps:g} is not its container's {video_fps:g} fps: the frames are timed at "
+            f"{fps:g} fps ([video] fps), {drift_s:.3g} s off the container's rate by the last frame; set [video] "
+            f"fps = {video_fps:g}, or give the frames' times in a frames.csv")
+
 
 #: Share of valid vision frames under which a command warns (lanes lost, a camera config that
 #: does not fit the video).
@@ -278,13 +300,23 @@ def too_few_valid(n_valid: int, n_frames: int) -> bool:
 def vision_warnings(video, vision: pd.DataFrame, stats: dict, n_listed: int, listed_by: str) -> list[str]:
     """What a command says of the vision's result: listed frames the video did not give
     (``stats``: :func:`vision.video.estimate_video`'s; ``listed_by`` says who listed them:
-    frames.csv, or the count of the video's frames), and a vision valid on under
+    frames.csv, or the count of the video's frames), pictures that could not be read (their
+    frames skipped, rows invalid), and a vision valid on under
     :data:`VISION_VALID_WARN` of its frames (none among none included), with the commonest
     reason."""
     out = []
     if stats.get("frames_missing"):
         out.append(f"{video}: {stats['frames_read']} frames could be read; {stats['frames_missing']} of the "
                    f"{n_listed} frames {listed_by} are not among them (not processed)")
+    n_bad = stats.get("frames_unreadable", 0)
+    if n_bad:
+        names: dict[str, list[str]] = {}
+        for name, why in stats["unreadable"]:
+            names.setdefault(why, []).append(name)
+        said = "; ".join(f"{', '.join(n)}{', ...' if n_bad > len(stats['unreadable']) else ''}: {why}"
+                         for why, n in names.items())
+        out.append(f"{video}: {n_bad} of the {n_listed} frames {listed_by} are pictures that could not be read "
+                   f"({said}): skipped, their rows invalid")
     n_valid = int(vision["valid"].sum()) if len(vision) else 0
     if too_few_valid(n_valid, len(vision)):
         reasons = vision.loc[~vision["valid"].astype(bool), "reason"].value_counts() if len(vision) else ()
@@ -296,9 +328,10 @@ def vision_warnings(video, vision: pd.DataFrame, stats: dict, n_listed: int, lis
 def frames_spacing_warning(frames: pd.DataFrame, frames_name: str, container=None) -> str | None:
     """A warning when frames.csv's times disagree with its frame numbers: intervals whose time
     per frame number is off the median by more than :data:`FRAME_PERIOD_TOLERANCE` (a jump of
-    half a second between two consecutive 30 fps frames), or a median period off the rate of
+    half a second between two consecutive 30 fps frames), a median period off the rate of
     the video's ``container`` (:func:`video_container`) by more than that (360 frames 1 ns
-    apart); None when they agree. A review found both fused at those times without a word."""
+    apart), or outside :data:`CAMERA_PERIOD_S` (a video's or a folder's); None when they agree.
+    A review found them fused at those times without a word."""
     video_fps = container[1] if container is not None else None
     t = frames["t_s"].to_numpy(dtype=float)
     f = frames["frame"].to_numpy(dtype=float)
@@ -316,6 +349,9 @@ def frames_spacing_warning(frames: pd.DataFrame, frames_name: str, container=Non
     if video_fps and video_fps > 0 and abs(med * video_fps - 1.0) > FRAME_PERIOD_TOLERANCE:
         said.append(f"its median period {1e3 * med:.3g} ms is not the video's {1e3 / video_fps:.3g} ms "
                     f"({video_fps:g} fps)")
+    if not CAMERA_PERIOD_S[0] <= med <= CAMERA_PERIOD_S[1]:
+        said.append(f"its median period {med:.3g} s a frame is no camera's ({CAMERA_PERIOD_S[0]:g} to "
+                    f"{CAMERA_PERIOD_S[1]:g} s; times in ms or ns given as seconds?)")
     if not said:
         return None
     return (f"{frames_name}: {'; '.join(said)}: are its times and frame numbers the video's? The frames are "
@@ -343,36 +379,54 @@ def frames_skipped_warning(frames: pd.DataFrame, frames_name: str) -> str | None
 def frames_warnings(video: Path, frames: pd.DataFrame, frames_csv: Path | None, fps: float) -> list[str]:
     """What a command says of the frames it is to process, before the vision runs: with
     ``frames_csv``, its unlisted tail, its times against its frame numbers and frames it steps
-    over; without, a video that decodes to fewer frames than its container announces. The
-    container is read once for them all."""
-    container = video_container(video)
-    if frames_csv is None:
-        said = (video_cut_warning(video, len(frames), container),)
-    else:
-        name = str(frames_csv)
-        said = (frames_unlisted_warning(video, frames, name, fps, container),
-                frames_spacing_warning(frames, name, container), frames_skipped_warning(frames, name))
-    return [w for w in said if w]
-
-
-def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str, fps: float,
-                            container=None) -> str | None:
-    """A warning when the video holds more than a second of frames after the last one that
-    ``frames`` lists (a frames.csv cut short: the frames after it are not processed), or None.
-    The video's length is its ``container``'s frame count (:func:`video_container`, read
-    without decoding; a folder's pictures); a video without one is not checked. The time a video frame takes is the
-    listed frames' (their time span over their number span: a listing of every n-th frame is
-    as good), or ``1 / fps`` when one frame is listed (``[video] fps``, the container's rate)."""
-    if not len(frames):
-        return None
+    over; without, a video that decodes to fewer frames than its container announces and a
+    ``fps`` (``[video] fps``) that is not its container's; either way, a folder whose numbered
+    names are not taken as frame numbers. The container and the folder are read once for them
+    all."""
     from vision.errors import VisionError
     from vision.video import FrameSource
 
+    container = video_container(video)
     try:
-        src = FrameSource(video, frames["frame"])
+        src = FrameSource(video, None if frames_csv is None else frames["frame"])
     except VisionError:   # the vision's own reading says what is wrong
+        src = None
+    if frames_csv is None:
+        said = (video_cut_warning(video, len(frames), container),
+                video_rate_warning(video, len(frames), fps, container))
+    else:
+        name = str(frames_csv)
+        said = (frames_unlisted_warning(video, frames, name, fps, container, src),
+                frames_spacing_warning(frames, name, container), frames_skipped_warning(frames, name))
+    said += (name_order_warning(src, frames_csv),)
+    return [w for w in said if w]
+
+
+def name_order_warning(src, frames_csv: Path | None) -> str | None:
+    """A warning when a folder's pictures are named by numbers that are not taken as frame
+    numbers (:attr:`vision.video.FrameSource.name_order`), with how to give their times; None
+    otherwise. On KITTI's pictures 0-5, 25, 45, 65, 85 picture 25 had become frame 6, at 0.6 s
+    for 2.5 s, without a word (a review)."""
+    if src is None or src.name_order is None:
         return None
-    if src.files is not None:
+    timed = "at [video] start_s + frame / fps" if frames_csv is None else f"at the times {frames_csv} gives them"
+    return (f"{src.name_order}, {timed}: if the names are frame numbers, give each picture's time in a frames.csv "
+            "that lists them by number (frame = the name's number less the first's, t_s)")
+
+
+def frames_unlisted_warning(video: Path, frames: pd.DataFrame, frames_name: str, fps: float,
+                            container=None, src=None) -> str | None:
+    """A warning when the video holds more than a second of frames after the last one that
+    ``frames`` lists (a frames.csv cut short: the frames after it are not processed), or None.
+    The video's length is its ``container``'s frame count (:func:`video_container`, read
+    without decoding), or a folder's pictures (``src``: its :class:`vision.video.FrameSource`
+    with the frames listed); a video without one is not checked. The time a video frame takes
+    is the listed frames' (their time span over their number span: a listing of every n-th
+    frame is as good), or ``1 / fps`` when one frame is listed (``[video] fps``, the
+    container's rate)."""
+    if not len(frames):
+        return None
+    if src is not None and src.files is not None:
         n_video = len(src.files)
     elif container is None:
         return None

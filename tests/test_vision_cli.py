@@ -84,16 +84,107 @@ def test_missing_video_is_a_one_line_error(drive, tmp_path, capsys):
     assert rc == 2 and err.startswith("error: ") and "nope.mp4" in err and "\n" not in err
 
 
-def test_unreadable_frame_names_the_file(drive, tmp_path, capsys):
+def _copy_frames(root: Path, to: Path, ext: str = ".png") -> list[Path]:
+    """The drive's five pictures copied to ``to`` (re-encoded by OpenCV for another ``ext``)."""
+    to.mkdir()
+    out = []
+    for f in sorted((root / "frames").iterdir()):
+        out.append(to / (f.stem + ext))
+        cv2.imwrite(str(out[-1]), cv2.imread(str(f)))
+    return out
+
+
+def _vision_of_folder(root: Path, tmp_path: Path, capfd):
+    """``vifusion vision`` of ``tmp_path / "frames"`` with the drive's frames.csv and config: the
+    table written and what was printed (exit 0 checked)."""
+    out = tmp_path / "v.csv"
+    rc = main(["vision", "--video", str(tmp_path / "frames"), "--frames", str(root / "frames.csv"),
+               "--config", str(root / "config.toml"), "--out", str(out), "--quiet", "--workers", "1"])
+    said = capfd.readouterr()
+    assert rc == 0, said.err
+    return pd.read_csv(out), said
+
+
+@pytest.mark.parametrize("bad", ["text", "cut", "empty", "dangling"])
+def test_an_unreadable_picture_is_a_frame_skipped_and_said(drive, tmp_path, capfd, bad):
+    """Picture 0002 of five is text, a PNG cut to 500 bytes, an empty file or a link to nothing:
+    its frame is skipped, its row invalid with the reason, counted on the summary line and
+    warned with the picture's name; the other frames are estimated. It had ended the run with
+    exit 2 and nothing written (a review: after 12 s of a 4000-picture folder), and libpng's
+    own "Read Error" line came raw on stderr."""
     root, _ = drive
-    bad = tmp_path / "frames"
-    bad.mkdir()
-    (bad / "0000.png").write_bytes((root / "frames" / "0000.png").read_bytes())
-    (bad / "0001.png").write_bytes(b"not a png")
-    rc = main(["vision", "--video", str(bad), "--config", str(root / "config.toml"), "--out", str(tmp_path / "v.csv"),
-               "--quiet"])
-    err = capsys.readouterr().err
-    assert rc == 2 and "0001.png" in err
+    pictures = _copy_frames(root, tmp_path / "frames")
+    if bad == "text":
+        pictures[2].write_bytes(b"not a png")
+    elif bad == "cut":
+        pictures[2].write_bytes(pictures[2].read_bytes()[:500])
+    elif bad == "empty":
+        pictures[2].write_bytes(b"")
+    else:
+        pictures[2].unlink()
+        pictures[2].symlink_to(tmp_path / "nowhere.png")
+    v, said = _vision_of_folder(root, tmp_path, capfd)
+    assert list(v["frame"]) == [0, 1, 2, 3, 4] and list(v["valid"]) == [1, 1, 0, 1, 1]
+    assert v["reason"][2].startswith("unreadable picture") and np.isnan(v["roll_deg"][2])
+    assert "1 unreadable picture(s) skipped" in said.out
+    warned = [line for line in said.err.splitlines() if "0002.png" in line]
+    assert len(warned) == 1 and warned[0].startswith("warning: ") and "1 of the 5 frames" in warned[0], said.err
+    assert all(line.startswith("warning: ") for line in said.err.splitlines()), said.err   # nothing raw
+
+
+def test_a_folder_of_unreadable_pictures_is_a_one_line_error(drive, tmp_path, capsys):
+    """None of the pictures readable: an error before any frame is estimated, nothing written."""
+    (tmp_path / "frames").mkdir()
+    for k in range(3):
+        (tmp_path / "frames" / f"{k:04d}.png").write_bytes(b"not a png")
+    out = tmp_path / "v.csv"
+    rc = main(["vision", "--video", str(tmp_path / "frames"), "--config", str(drive[0] / "config.toml"),
+               "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.startswith("error: ") and "\n" not in err
+    assert "none of the 3 pictures" in err and "0000.png" in err
+    assert not list(tmp_path.glob("v.csv*"))
+
+
+def test_a_damaged_jpeg_is_an_unreadable_picture(drive, tmp_path, capfd):
+    """JPEG 0002's entropy-coded data from its middle on overwritten (its end marker kept), as a
+    review did: OpenCV returns a picture, grey or garbled below the damage, and libjpeg prints
+    "Corrupt JPEG data: premature end of data segment" naming no file; 8 of 11 such frames had
+    stayed valid, roll up to 0.24 deg off. Now it is an unreadable picture (F1's skip), the
+    libjpeg line in its reason and the warning, not raw on stderr."""
+    root, _ = drive
+    pictures = _copy_frames(root, tmp_path / "frames", ".jpg")
+    data = bytearray(pictures[2].read_bytes())
+    data[len(data) // 2:-2] = b"\x55" * (len(data) - 2 - len(data) // 2)
+    pictures[2].write_bytes(bytes(data))
+    assert cv2.imread(str(pictures[2])) is not None     # OpenCV alone takes it for a picture
+    capfd.readouterr()
+    v, said = _vision_of_folder(root, tmp_path, capfd)
+    assert list(v["valid"]) == [1, 1, 0, 1, 1]
+    assert v["reason"][2].startswith("unreadable picture: damaged JPEG data (libjpeg: Corrupt JPEG data")
+    assert any("0002.jpg" in line and "damaged JPEG data" in line for line in said.err.splitlines()), said.err
+    assert all(line.startswith("warning: ") for line in said.err.splitlines()), said.err
+
+
+def test_which_libjpeg_lines_are_damage(tmp_path, capfd):
+    """libjpeg's "N extraneous bytes before marker" for a few bytes (an encoder's padding: the
+    picture decodes whole) is not damage; thousands of them, left by junk in the data (100 zero
+    bytes in the middle of a picture: 1619 here), and its other "Corrupt JPEG data" and
+    "Premature end" lines are."""
+    from vision.video import _damage, _decode_picture
+
+    assert not _damage("Corrupt JPEG data: 1 extraneous bytes before marker 0xd9")
+    assert _damage("Corrupt JPEG data: 1619 extraneous bytes before marker 0xd9")
+    assert _damage("Corrupt JPEG data: premature end of data segment")
+    assert _damage("Corrupt JPEG data: bad Huffman code")
+    assert _damage("Premature end of JPEG file")
+    assert not _damage("libpng warning: iCCP: known incorrect sRGB profile")
+    img = (np.random.default_rng(0).random((180, 320, 3)) * 255).astype(np.uint8)
+    data = cv2.imencode(".jpg", img)[1].tobytes()
+    mid = len(data) // 2
+    (tmp_path / "junk.jpg").write_bytes(data[:mid] + bytes(100) + data[mid + 100:])
+    got, why = _decode_picture(tmp_path / "junk.jpg")
+    assert got is None and "extraneous bytes" in why and capfd.readouterr().err == ""
 
 
 def test_frame_source_order_and_errors(tmp_path):
@@ -285,6 +376,101 @@ def test_a_folder_of_every_third_frame_named_by_number(tmp_path):
     src = FrameSource(tmp_path, range(10))          # frames.csv by position
     assert {i: int(img[0, 0, 0]) for i, img in _frames_from(src, 0)} == {k: 3 * k for k in range(10)}
     assert len(FrameSource(tmp_path)) == 10        # no listing: name order, as before
+
+
+def test_numbered_names_not_taken_as_frame_numbers_are_said(drive, tmp_path, capsys):
+    """The drive's five pictures named 0, 1, 2, 25, 45 (numbers that skip more values than there
+    are pictures): they are frames 0-4 in name order, as the README's rule says, and the run now
+    says so with how to give their times; listed by number in a frames.csv they are frames 0, 1,
+    2, 25, 45 and nothing is said. A review found picture 25 of KITTI's folder at 0.6 s for 2.5 s
+    without a word."""
+    root, _ = drive
+    (tmp_path / "frames").mkdir()
+    for f, n in zip(sorted((root / "frames").iterdir()), (0, 1, 2, 25, 45)):
+        shutil.copy(f, tmp_path / "frames" / f"{n:06d}.png")
+    out = tmp_path / "v.csv"
+    assert main(["vision", "--video", str(tmp_path / "frames"), "--config", str(root / "config.toml"),
+                 "--out", str(out), "--quiet", "--workers", "1"]) == 0
+    err = capsys.readouterr().err
+    said = [line for line in err.splitlines() if "not taken as frame numbers" in line]
+    assert len(said) == 1 and said[0].startswith("warning: ") and "(0 to 45)" in said[0], err
+    assert "frames 0 to 4 in name order" in said[0] and "frames.csv" in said[0]
+    assert list(pd.read_csv(out)["frame"]) == [0, 1, 2, 3, 4]
+    listed = tmp_path / "frames.csv"
+    pd.DataFrame({"frame": [0, 1, 2, 25, 45], "t_s": [0.0, 0.1, 0.2, 2.5, 4.5]}).to_csv(listed, index=False)
+    assert main(["vision", "--video", str(tmp_path / "frames"), "--frames", str(listed), "--config",
+                 str(root / "config.toml"), "--out", str(out), "--quiet", "--workers", "1"]) == 0
+    assert "not taken as frame numbers" not in capsys.readouterr().err
+    assert list(pd.read_csv(out)["t_s"]) == [0.0, 0.1, 0.2, 2.5, 4.5]
+
+
+def test_kittis_folder_in_name_order_is_said():
+    """The shared KITTI folder (pictures 0-5, 25, 45, 65, 85), read only: without frames.csv a
+    warning says its names are not taken as frame numbers; a frames.csv listing 0-9 (by
+    position) decides it, and nothing is said."""
+    from conftest import shared_data_dir
+
+    from fusion.drive import frames_warnings, read_frame_times
+    from fusion.config import VideoTiming
+
+    folder = shared_data_dir() / "kitti_2011_09_26_drive_0001" / "2011_09_26_drive_0001_sync" / "image_02" / "data"
+    if not folder.is_dir():
+        pytest.skip(f"{folder} not present")
+    frames = read_frame_times(None, VideoTiming(10.0, 0.0), count_frames(folder))
+    said = [w for w in frames_warnings(folder, frames, None, 10.0) if "not taken as frame numbers" in w]
+    assert len(said) == 1 and "(0 to 85)" in said[0] and "[video] start_s + frame / fps" in said[0], said
+    assert not [w for w in frames_warnings(folder, frames, Path("frames.csv"), 10.0) if "frame numbers" in w]
+
+
+def _video_and_pictures(tmp_path: Path, fps: float = 15.0, n: int = 10) -> tuple[Path, Path]:
+    """The same ``n`` small frames as an AVI whose container says ``fps`` and as a folder of PNGs."""
+    video, folder = tmp_path / "v.avi", tmp_path / "pictures"
+    folder.mkdir()
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), fps, (64, 48))
+    for k in range(n):
+        img = np.full((48, 64, 3), 10 * k, np.uint8)
+        writer.write(img)
+        cv2.imwrite(str(folder / f"{k:06d}.png"), img)
+    writer.release()
+    return video, folder
+
+
+def test_a_config_fps_that_is_not_the_containers_is_said(tmp_path):
+    """A video whose container says 15 fps, timed without frames.csv by ``[video] fps = 30``:
+    every time was halved without a word, while the same mismatch through a frames.csv was
+    said (a review). Now the warning names both rates and which one times the frames; a config
+    that agrees says nothing, nor does 29.97 against 30 on a few frames (a thirtieth of a frame)."""
+    from fusion.config import VideoTiming
+    from fusion.drive import frames_warnings, read_frame_times
+
+    video, _ = _video_and_pictures(tmp_path)
+
+    def warned(fps):
+        frames = read_frame_times(None, VideoTiming(fps, 0.0), count_frames(video))
+        return [w for w in frames_warnings(video, frames, None, fps) if "[video] fps" in w]
+
+    said = warned(30.0)
+    assert len(said) == 1 and "[video] fps = 30 is not its container's 15 fps" in said[0], said
+    assert "timed at 30 fps" in said[0] and "0.3 s off" in said[0] and "frames.csv" in said[0]
+    assert warned(15.0) == []
+    (tmp_path / "ntsc").mkdir()
+    video, _ = _video_and_pictures(tmp_path / "ntsc", 29.97)
+    assert warned(30.0) == []
+
+
+def test_frame_times_in_ns_are_said_for_a_video_and_a_folder(tmp_path):
+    """frames.csv with times in nanoseconds read as seconds (t_s about 1.7e18): said for a
+    video only, by its container's rate; a folder of the same pictures took them silently (a
+    review). One check of the median period, for both, says it now."""
+    from fusion.drive import frames_warnings
+
+    video, folder = _video_and_pictures(tmp_path)
+    ns = pd.DataFrame({"frame": np.arange(10), "t_s": 1.7e18 + np.arange(10) * 1e9 / 15})
+    seconds = ns.assign(t_s=1.7e9 + np.arange(10) / 15)
+    for source in (video, folder):
+        said = [w for w in frames_warnings(source, ns, Path("frames.csv"), 30.0) if "no camera's" in w]
+        assert len(said) == 1 and "6.67e+07 s a frame" in said[0] and "ns given as seconds" in said[0], said
+        assert frames_warnings(source, seconds, Path("frames.csv"), 30.0) == []
 
 
 def test_the_debug_video_is_the_tables_run(tmp_path):

@@ -86,11 +86,15 @@ class FrameSource:
             raise VisionError(f"{self.path}: no such video file or folder")
         #: A folder's pictures by frame index (None where a numbered picture is missing).
         self.files: list[Path | None] | None = None
+        #: Why a folder's numbered names are not its frame numbers, when they are not and the
+        #: frame numbers listed did not decide it (:func:`_by_number`); None otherwise.
+        self.name_order: str | None = None
         if self.path.is_dir():
             files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
             if not files:
                 raise VisionError(f"{self.path}: folder has no .png or .jpg frames")
-            self.files = _by_number(files, None if listed is None else sorted(set(int(f) for f in listed)))
+            numbers = None if listed is None else sorted(set(int(f) for f in listed))
+            self.files, self.name_order = _by_number(files, numbers)
         else:
             cap = cv2.VideoCapture(str(self.path))
             ok = cap.isOpened()
@@ -123,7 +127,7 @@ class FrameSource:
 _MAX_NUMBERS_PER_PICTURE = 100
 
 
-def _by_number(files: list[Path], listed: list[int] | None = None) -> list[Path | None]:
+def _by_number(files: list[Path], listed: list[int] | None = None) -> tuple[list[Path | None], str | None]:
     """Pictures in name order, or, when every name is a frame number (``000123.png``), at their
     number less the first's: a picture missing from a numbered sequence is then a missing frame,
     not a shift of every later frame onto the time of the one before it. Names that are times
@@ -135,7 +139,11 @@ def _by_number(files: list[Path], listed: list[int] | None = None) -> list[Path 
     order picture k had taken frame k's time, a review found); positions it all names (and not
     all numbers) are name order. Otherwise numbers that skip at most as many values as there are
     pictures are frame numbers. Numbered names mixed with others are an error: in name order
-    every frame after a stray ``000040 - Copy.png`` took the picture before its own (a review)."""
+    every frame after a stray ``000040 - Copy.png`` took the picture before its own (a review).
+
+    Also returns, when numbered names are taken in name order by that rule (not by the listing),
+    a line that says so: on KITTI's pictures 0-5, 25, 45, 65, 85 picture 25 had silently become
+    frame 6, at 0.6 s for 2.5 s (a review); None otherwise."""
     digits = [p.stem.isdigit() for p in files]
     if any(digits) and not all(digits):
         odd = [p.name for p, d in zip(files, digits) if not d]
@@ -143,23 +151,29 @@ def _by_number(files: list[Path], listed: list[int] | None = None) -> list[Path 
                           f"({', '.join(odd[:3])}{', ...' if len(odd) > 3 else ''}): the frames' order is not "
                           "clear; remove or rename those")
     if not all(digits):
-        return files
+        return files, None
     numbers = [int(p.stem) for p in files]
     first, span = min(numbers), max(numbers) - min(numbers) + 1
-    if len(set(numbers)) < len(files) or span > _MAX_NUMBERS_PER_PICTURE * len(files):
-        return files
-    by_number = span <= 2 * len(files)
+    in_name_order = (f": they are not taken as frame numbers, the pictures are frames 0 to {len(files) - 1} in "
+                     "name order")
+    if len(set(numbers)) < len(files):
+        return files, f"{files[0].parent}: two or more of its pictures have one number" + in_name_order
+    by_number, decided = span <= 2 * len(files), False
     if listed:
         numbered = {n - first for n in numbers}
         as_numbers, as_positions = set(listed) <= numbered, listed[-1] < len(files) and listed[0] >= 0
         if as_numbers != as_positions:
-            by_number = as_numbers
+            by_number, decided = as_numbers, True
+    if by_number and span > _MAX_NUMBERS_PER_PICTURE * len(files):
+        by_number, decided = False, False       # as many slots as numbers: names that are times
     if not by_number:
-        return files
+        return files, None if decided else (f"{files[0].parent}: the numbers its {len(files)} pictures are named by "
+                                            f"({first} to {first + span - 1}) skip more values than there are "
+                                            "pictures" + in_name_order)
     out: list[Path | None] = [None] * span
     for p, n in zip(files, numbers):
         out[n - first] = p
-    return out
+    return out, None
 
 
 def count_frames(path: str | os.PathLike) -> int:
@@ -318,7 +332,16 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         One row per processed frame, :data:`VISION_COLUMNS`.
     stats : dict
         ``frames_read`` (decoded), ``frames_missing`` (listed in ``frames`` but not in the video),
-        ``valid`` (count), ``median_ms``, ``workers`` (processes used), ``pieces``.
+        ``frames_unreadable`` (a folder's pictures that could not be read: their rows are invalid,
+        ``reason`` :data:`UNREADABLE_PICTURE` and why), ``unreadable`` (the first three of them:
+        ``(name, why)``), ``valid`` (count), ``median_ms``, ``workers`` (processes used), ``pieces``.
+
+    Raises
+    ------
+    VisionError
+        A source that cannot be read (:class:`FrameSource`), frames none of which has the
+        camera's size (:func:`check_frame_size`), a folder none of whose pictures to estimate
+        can be read (:func:`check_readable`).
     """
     import pandas as pd
     from tqdm import tqdm
@@ -328,6 +351,7 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
     want = {int(f): float(t) for f, t in zip(frames["frame"], frames["t_s"])}
     src = FrameSource(video, want)
     check_frame_size(src, camera)
+    check_readable(src, sorted(want))
     speeds = ({int(f): float(v) for f, v in zip(frames["frame"], frames["speed_m_s"])}
               if "speed_m_s" in frames else None)
     wanted = sorted(want)
@@ -350,9 +374,14 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         bar.close()
     table = pd.DataFrame(rows, columns=list(VISION_COLUMNS))
     done = set(table["frame"]) if len(table) else set()
+    unreadable = table.loc[table["reason"].str.startswith(UNREADABLE_PICTURE, na=False), ["frame", "reason"]]
     stats = {
         "frames_read": n_read,
         "frames_missing": sum(1 for f in want if f not in done),
+        "frames_unreadable": len(unreadable),
+        # the first few, for the warning: the picture's name and why it was not read
+        "unreadable": [(src.files[int(f)].name, r[len(UNREADABLE_PICTURE) + 2:])
+                       for f, r in unreadable.head(3).itertuples(index=False)],
         "valid": int(table["valid"].sum()) if len(table) else 0,
         "median_ms": float(table["estimator_ms"].median()) if len(table) else math.nan,
         "workers": workers,
@@ -392,42 +421,113 @@ def piece_count(n_frames: int, fps: float, warm_up: int) -> int:
     return max(1, min(by_length, n_frames // (warm_up + _MIN_PIECE)))
 
 
-def _read_picture(path: Path) -> np.ndarray:
-    """One picture of a frames folder, or :class:`VisionError` saying why not. What the
-    decoders print for a picture they cannot read goes with it (a review: libpng's "Read
-    Error" and OpenCV's "findDecoder" line came before the program's one-line error); what
-    they print for one they read is passed on."""
+#: ``reason`` of a frame whose picture could not be read (:func:`_decode_picture`): its row in
+#: ``vision.csv`` is invalid, the run goes on and counts it (``stats["frames_unreadable"]``).
+UNREADABLE_PICTURE = "unreadable picture"
+
+
+class UnreadablePicture(NamedTuple):
+    """A picture of a frames folder that could not be read, in its frame's place
+    (:func:`_frames_from` with ``unreadable=True``), and why (:func:`_decode_picture`)."""
+
+    path: Path
+    why: str
+
+
+#: Lines libjpeg prints for a JPEG whose data is damaged and that OpenCV still returns, the rest
+#: of the picture grey or garbled: the review's JPEGs with their second half overwritten gave
+#: "Corrupt JPEG data: premature end of data segment" and 8 of 11 stayed valid, roll up to 0.24
+#: deg off; junk in the middle of a random picture gives "... 1619 extraneous bytes before
+#: marker 0xd9". Such a picture is unreadable. Data that decodes in step despite damage says
+#: nothing and cannot be told from a picture.
+_DAMAGED_JPEG = ("Corrupt JPEG data", "Premature end of JPEG file")
+#: Extraneous bytes before a marker up to this many are an encoder's padding, not damage (the
+#: picture decodes whole): the line is passed on, with the file's name.
+_PADDING_BYTES = 16
+
+
+def _damage(line: str) -> bool:
+    """Whether a line libjpeg printed while decoding says the picture's data is damaged
+    (:data:`_DAMAGED_JPEG`; a few extraneous bytes, :data:`_PADDING_BYTES`, are not)."""
+    if not line.startswith(_DAMAGED_JPEG):
+        return False
+    words = line.split()
+    if "extraneous" in words:
+        n = words[words.index("extraneous") - 1]
+        return not (n.isdigit() and int(n) <= _PADDING_BYTES)
+    return True
+
+
+def _decode_picture(path: Path) -> tuple[np.ndarray | None, str]:
+    """One picture of a frames folder, or None and why not. What the decoders print goes with
+    the picture: for one that cannot be read, or whose JPEG data libjpeg says is damaged
+    (:func:`_damage`: then it is not read either, its line in the ``why``), it is dropped (a
+    review: libpng's "Read Error", OpenCV's "findDecoder" and libjpeg's "Corrupt JPEG data"
+    lines came raw, naming no file); the rest is passed on, each line after the file's name."""
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as e:
-        raise VisionError(f"{path}: not a readable picture ({e.strerror or e})") from None
+        return None, f"not a readable picture ({e.strerror or e})"
+    if not data.size:
+        return None, "not a readable picture (an empty file)"
     saved = os.dup(2)
     with tempfile.TemporaryFile() as said:
         os.dup2(said.fileno(), 2)          # the C libraries' own lines on stderr, for now
         try:
-            img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+            img = cv2.imdecode(data, cv2.IMREAD_COLOR)
         finally:
             os.dup2(saved, 2)
             os.close(saved)
         if img is None:
-            raise VisionError(f"{path}: not a readable picture")
+            return None, "not a readable picture"
         said.seek(0)
-        text = said.read()
-    if text:
-        os.write(2, text)
-    return img
+        lines = said.read().decode(errors="replace").splitlines()
+    damaged = [line for line in lines if _damage(line)]
+    if damaged:
+        return None, f"damaged JPEG data (libjpeg: {damaged[0].strip()})"
+    if lines:
+        os.write(2, "".join(f"{path}: {line}\n" for line in lines).encode())
+    return img, ""
 
 
-def _frames_from(src: FrameSource, start: int, luma: bool = False) -> Iterator[tuple[int, np.ndarray]]:
+def check_readable(src: FrameSource, wanted: Iterable[int]) -> None:
+    """:class:`VisionError` when none of the pictures of the frames ``wanted`` can be read (a
+    folder's; a video is not checked): said before the first frame is estimated, and before a
+    debug video is begun. Pictures are read until one is: one picture on any folder that has a
+    readable one first. An unreadable picture among readable ones is a frame skipped, counted
+    and said (:func:`estimate_video`); it had ended the run with nothing written, a review: the
+    4000-picture folder with picture 3900 cut to 500 bytes, after 12 s of estimation."""
+    if src.files is None:
+        return
+    tried, first = 0, ""
+    for i in wanted:
+        f = src.files[i] if 0 <= i < len(src.files) else None
+        if f is None:
+            continue
+        img, why = _decode_picture(f)
+        if img is not None:
+            return
+        tried, first = tried + 1, first or f"{f.name}: {why}"
+    if tried:
+        raise VisionError(f"{src.path}: none of the {tried} pictures to estimate can be read (the first, {first})")
+
+
+def _frames_from(src: FrameSource, start: int, luma: bool = False,
+                 unreadable: bool = False) -> Iterator[tuple[int, np.ndarray | UnreadablePicture]]:
     """``(index, image)`` from frame ``start`` on. A video is positioned with a seek, checked:
     when the container cannot seek to the frame exactly, the frames before it are decoded and
-    dropped instead. ``luma``: a video's frames may come as grey pictures (:func:`_luma_frames`)."""
+    dropped instead. ``luma``: a video's frames may come as grey pictures (:func:`_luma_frames`).
+    A folder's picture that cannot be read is a :class:`VisionError`, or with ``unreadable`` an
+    :class:`UnreadablePicture` in its place."""
     if src.files is not None:
         for i in range(start, len(src.files)):
             f = src.files[i]
             if f is None:
                 continue          # a numbered picture missing: that frame is missing
-            yield i, _read_picture(f)
+            img, why = _decode_picture(f)
+            if img is None and not unreadable:
+                raise VisionError(f"{f}: {why}")
+            yield i, (UnreadablePicture(f, why) if img is None else img)
         return
     if luma:
         frames = _luma_frames(src.path, start)
@@ -582,11 +682,19 @@ def _estimate_piece(src: FrameSource, wanted: list[int], times: dict, setup, wri
     # the estimator's grey with a debug video too (it drew on OpenCV's colour frames, and the
     # estimator got their grey, a few levels off the luma: another run, 7 of 10 KITTI frames
     # valid against 2, a review); the debug video shows the grey the vision saw
-    for i, img in _frames_from(src, wanted[0] if wanted else 0, luma=True):
+    for i, img in _frames_from(src, wanted[0] if wanted else 0, luma=True, unreadable=True):
         n_read = i + 1
         if i > last:
             break
         if i not in wanted_set:
+            continue
+        if isinstance(img, UnreadablePicture):
+            # skipped: an invalid row that says why; the estimator's state and the distance
+            # travelled carry over to the next frame, as over a missing picture
+            rows.append(vision_row(times[i], i, VisionEstimate.invalid(f"{UNREADABLE_PICTURE}: {img.why}",
+                                                                        est.options.method)))
+            if len(rows) > warm and tick is not None:
+                tick(1)
             continue
         travel = _travel_m(speeds, times, last_done, i)
         last_done = i

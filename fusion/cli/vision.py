@@ -88,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
     write_table(vision, args.out)
     n = len(vision)
     missing = f"; {stats['frames_missing']} listed frames not in the video" if stats["frames_missing"] else ""
+    if stats["frames_unreadable"]:
+        missing += f"; {stats['frames_unreadable']} unreadable picture(s) skipped"
     print(f"wrote {args.out}: {n} frames, {stats['valid']} valid ({100 * stats['valid'] / max(n, 1):.0f} %), "
           f"median {stats['median_ms']:.1f} ms/frame ({options.method}, {stats['workers']} worker(s)){missing}"
           + ((f"; debug video {args.debug_video}" if n else "; no debug video written (no frame was processed)")
