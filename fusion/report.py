@@ -130,7 +130,12 @@ def summarise(r: ReportInputs) -> dict:
             vals = acc.get(src) or {}
             if "valid_fraction" not in vals and not any(math.isfinite(v) for v in vals.values()):
                 acc[src] = None
-        out["rmse_deg"] = acc
+        # and every source's angle keys, null where it has none (the vision has no bank, a truth
+        # of roll_world and pitch_world alone scores no roll): keys left out had made
+        # ``s["rmse_deg"]["fused"]["bank"]`` a KeyError where the README promises a null (a review)
+        out["rmse_deg"] = {src: None if vals is None else {**{a: vals.get(a, math.nan) for a in ANGLES},
+                                                           **{k: v for k, v in vals.items() if k not in ANGLES}}
+                           for src, vals in acc.items()}
         nees_angles = ("roll", "pitch", "yaw", "bank")
         if all(f"{a}_deg" in r.truth for a in nees_angles) and \
                 _truth_covers_s(f, tr, t0, nees_angles, every=True) < MIN_SCORED_S:
@@ -455,13 +460,16 @@ def _table_html(summary: dict) -> str:
         head = "".join(f"<th>{c}</th>" for c in cols)
         rows.append(f"<h2>RMSE against truth [deg] (after {CONVERGENCE_S:g} s)</h2><table><tr><th>source</th>{head}</tr>")
         # a source without a value is said under the table, not shown as a row of blanks
-        none = [src for src, vals in acc.items()
-                if not any(math.isfinite((vals or {}).get(c, math.nan)) for c in cols)]
+        # (a value is NaN here, null in a summary read back from summary.json)
+        def score(vals, c):
+            v = (vals or {}).get(c)
+            return v if isinstance(v, (int, float)) and math.isfinite(v) else None
+
+        none = [src for src, vals in acc.items() if all(score(vals, c) is None for c in cols)]
         for src, vals in acc.items():
             if src in none:
                 continue
-            cells = "".join(f"<td>{vals[c]:.3f}</td>" if c in vals and math.isfinite(vals[c]) else "<td></td>"
-                            for c in cols)
+            cells = "".join("<td></td>" if score(vals, c) is None else f"<td>{vals[c]:.3f}</td>" for c in cols)
             rows.append(f"<tr><td>{html.escape(source_name(src, summary.get('smoothed')))}</td>{cells}</tr>")
         rows.append("</table>")
         if none:

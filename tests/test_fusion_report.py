@@ -229,6 +229,35 @@ def test_a_source_without_a_value_is_null_and_not_a_row_of_blanks(drawn, tmp_pat
     assert f"<td>{summary['timings_s']['report']:.2f} s</td>" in page
 
 
+def test_every_source_has_every_angle_key_null_where_it_has_none(drawn, tmp_path):
+    """summary.json's ``rmse_deg``: every source has every angle's key (README: "every key is
+    always there"), null where it has no value: the vision had only roll, pitch and yaw, the
+    IMU-minus-vision bank only bank, and with an INS truth of roll_world and pitch_world alone
+    ``["fused"]["bank"]`` was a KeyError (a review). The page still lists the scores."""
+    import json
+    from dataclasses import replace
+
+    from fusion.metrics import ANGLES
+
+    inputs = drawn["inputs"]
+    ins = inputs.truth[["t_s", "roll_world_deg", "pitch_world_deg"]]
+    for name, r in (("full", inputs), ("ins", replace(inputs, truth=ins))):
+        report.write_report(r, tmp_path / name)
+        acc = json.loads((tmp_path / name / "summary.json").read_text())["rmse_deg"]
+        assert set(acc) == {"fused", "vision", "imu_minus_vision", "imu_only"}
+        for src, vals in acc.items():   # a source without any value is null as a whole
+            assert vals is None or set(vals) == {*ANGLES, *(["valid_fraction"] if src == "vision" else [])}, \
+                (name, src, vals)
+        assert acc["imu_only"]["grade"] is None and acc["imu_only"]["roll_world"] > 0
+        page = (tmp_path / name / "report.html").read_text()
+        assert f"<td>{acc['fused']['roll_world']:.3f}</td>" in page
+    assert acc["fused"]["bank"] is None and acc["fused"]["roll"] is None and acc["fused"]["roll_world"] > 0
+    assert acc["imu_minus_vision"] is None       # no bank in the truth: nothing to score
+    full = json.loads((tmp_path / "full" / "summary.json").read_text())["rmse_deg"]
+    assert full["vision"]["bank"] is None and full["vision"]["roll"] > 0
+    assert full["imu_minus_vision"]["roll"] is None and full["imu_minus_vision"]["bank"] > 0
+
+
 def test_a_drive_shorter_than_the_convergence_is_scaled_to_its_estimates(drawn):
     """A drive under 2 s: the panels were scaled to the values after the first 2 s, none, and
     so the bias panel to the truth alone, the estimates off it (a review); now to all of it."""
