@@ -20,7 +20,7 @@ from vision.errors import VisionError
 
 from .errors import ConfigError
 
-__all__ = ["DriveConfig", "VideoTiming", "Table", "load_config", "read_toml", "parse_config"]
+__all__ = ["DriveConfig", "VideoTiming", "Table", "load_config", "read_toml", "parse_config", "parse_tables"]
 
 
 @dataclass(frozen=True)
@@ -142,9 +142,13 @@ class Table:
             raise self._not_known(stray[0], sorted(keys))
 
     def _not_known(self, key: str, known: list):
-        close = difflib.get_close_matches(key, known, n=1)
-        hint = f"did you mean {close[0]}? " if close else ""
-        return self.error(key, f"is not a known key ({hint}known: {', '.join(known) or 'none'})")
+        return self.error(key, f"is not a known key ({did_you_mean(key, known)}known: {', '.join(known) or 'none'})")
+
+
+def did_you_mean(name: str, known) -> str:
+    """``"did you mean X? "`` for the one of ``known`` closest to a name not known, or ``""``."""
+    close = difflib.get_close_matches(name, list(known), n=1)
+    return f"did you mean {close[0]}? " if close else ""
 
 
 _KIND_TEXT = {
@@ -259,35 +263,54 @@ def parse_video(t: Table) -> VideoTiming:
     return VideoTiming(fps, start)
 
 
-#: Tables whose keys are checked by other modules (``vision.options``, ``fusion.ekf``).
+#: Tables whose keys are checked by other modules (``vision.options``, ``fusion.options``).
 FREE_TABLES = ("vision", "fusion")
+#: Every table a config may hold.
+TABLES = ("camera", "mount", "road", "imu", "can", "video", *FREE_TABLES)
 
 
-def parse_config(data: dict, source: str, base_dir: Path) -> DriveConfig:
-    """Build a :class:`DriveConfig` from parsed TOML; ``source`` names the file in errors."""
-    known = {"camera", "mount", "road", "imu", "can", "video", *FREE_TABLES}
+def parse_tables(data: dict, source: str, base_dir: Path, required: tuple[str, ...] = ("camera", "mount")) -> dict:
+    """Every table of a parsed config TOML checked key by key, whichever command reads it: a
+    table or key vifusion does not know (a typo) is an error wherever the config is read (README:
+    ``vifusion can`` and ``vifusion vision`` had taken ``[camera] fxx`` or ``[fusion]
+    gyro_noise_degs`` without a word, a review). ``source`` names the file in errors; the tables
+    in ``required`` must be there.
+
+    Returns ``{table: built}``: ``road``, ``imu``, ``can``, ``video`` (their defaults when
+    absent), ``camera`` and ``mount`` where given (they have no defaults), ``vision``
+    (:class:`vision.options.EstimatorOptions`) and ``fusion`` (``(FusionOptions, RunSettings)``).
+    """
+    from vision.options import options_from_table
+
+    from .options import fusion_options_from_table   # (it reads its table with this module's Table)
+
     for name in data:
-        if name not in known:
-            raise ConfigError(f"{source}: [{name}] is not a known table (known: {', '.join(sorted(known))})")
+        if name not in TABLES:
+            raise ConfigError(f"{source}: [{name}] is not a known table "
+                              f"({did_you_mean(name, TABLES)}known: {', '.join(sorted(TABLES))})")
         if not isinstance(data[name], dict):
             raise ConfigError(f"{source}: {name} must be a table ([{name}]), got {data[name]!r}")
-    for name in ("camera", "mount"):
+    for name in required:
         if name not in data:
             raise ConfigError(f"{source}: [{name}] is missing")
 
     def table(name: str) -> Table:
         return Table(data.get(name, {}), name, source)
 
-    return DriveConfig(
-        camera=parse_camera(table("camera")),
-        mount=parse_mount(table("mount")),
-        road=parse_road(table("road")),
-        imu=parse_imu(table("imu")),
-        can=parse_can(table("can"), base_dir),
-        video=parse_video(table("video")),
-        extra={k: dict(data[k]) for k in FREE_TABLES if k in data},
-        path=None,
-    )
+    built = {name: parse(table(name)) for name, parse in (("camera", parse_camera), ("mount", parse_mount))
+             if name in data}
+    return {**built, "road": parse_road(table("road")), "imu": parse_imu(table("imu")),
+            "can": parse_can(table("can"), base_dir), "video": parse_video(table("video")),
+            "vision": options_from_table(data.get("vision"), source),
+            "fusion": fusion_options_from_table(data.get("fusion"), source)}
+
+
+def parse_config(data: dict, source: str, base_dir: Path) -> DriveConfig:
+    """Build a :class:`DriveConfig` from parsed TOML, every table checked (:func:`parse_tables`);
+    ``source`` names the file in errors."""
+    t = parse_tables(data, source, base_dir)
+    return DriveConfig(camera=t["camera"], mount=t["mount"], road=t["road"], imu=t["imu"], can=t["can"],
+                       video=t["video"], extra={k: dict(data[k]) for k in FREE_TABLES if k in data}, path=None)
 
 
 def load_config(path: str | Path) -> DriveConfig:

@@ -596,6 +596,38 @@ def test_a_wheel_speed_without_noise_is_a_config_error():
     assert opts.noise.speed_meas_m_s == 1e-3
 
 
+@pytest.mark.parametrize("change, words", [
+    (("[video]", "[foo]\nbar = 1\n[video]"), "[foo] is not a known table"),
+    (("[fusion]", "[fusoin]\n[fusion]"), "[fusoin] is not a known table (did you mean fusion?"),
+    (("fx =", "fxx ="), "[camera] fxx is not a known key (did you mean fx?"),
+    (("center_line", "centre_line"), "[road] centre_line is not a known key (did you mean center_line?"),
+    (("start_s", "start"), "[video] start is not a known key (did you mean start_s?"),
+    (("gyro_noise_deg_s", "gyro_noise_degs"), "[fusion] gyro_noise_degs is not a known key (did you mean gyro_noise_deg_s?"),
+    (("[fusion]", "[vision]\nroad_twst = true\n[fusion]"), "[vision] road_twst is not a known key (did you mean road_twist?"),
+    (("height_m = 1.1", 'height_m = "1.1"'), "[mount] height_m must be a number, got '1.1'"),
+])
+def test_every_command_checks_the_whole_config(tmp_path, capsys, change, words):
+    """A key or table vifusion does not know, or a value of the wrong kind, is the same one-line
+    error (exit 2, with run's did-you-mean) from every command that reads the config: `can` read
+    only [imu] and [can], `vision` not [fusion], and both took these without a word (a review)."""
+    from fusion.cli import main
+
+    shutil.copy(SAMPLE_DRIVE / "vifusion_imu.dbc", tmp_path)
+    cfg = tmp_path / "config.toml"
+    cfg.write_text((SAMPLE_DRIVE / "config.toml").read_text().replace(*change, 1))
+    video, frames, log = SAMPLE_DRIVE / "video.mp4", SAMPLE_DRIVE / "frames.csv", SAMPLE_DRIVE / "can.blf"
+    said = []
+    for args in (["run", "--video", video, "--frames", frames, "--can", log, "--config", cfg, "--out", tmp_path / "r"],
+                 ["vision", "--video", video, "--frames", frames, "--config", cfg, "--out", tmp_path / "v.csv"],
+                 ["can", log, "--config", cfg, "--out", tmp_path / "imu.csv"]):
+        assert main([*map(str, args), "--quiet"]) == 2, args
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and words in err[0], (args[0], err)
+        said.append(err[0])
+    assert len(set(said)) == 1, said
+    assert not list(tmp_path.glob("r*")) and not (tmp_path / "v.csv").exists() and not (tmp_path / "imu.csv").exists()
+
+
 def test_a_table_given_as_a_value_is_a_config_error(tmp_path):
     from fusion.config import load_config
     from fusion.errors import ConfigError

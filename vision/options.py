@@ -7,6 +7,7 @@ side (``tools/bench_vision.py``).
 
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass, fields, replace
 from typing import Any
@@ -257,7 +258,10 @@ def options_from_table(table: dict | None, source: str = "config") -> EstimatorO
     changes: dict[str, Any] = {}
     for key, value in data.items():
         if key not in known:
-            raise VisionError(f"{source}: [vision] {key} is not a known key (known: preset, {', '.join(sorted(known))})")
+            close = difflib.get_close_matches(key, ["preset", *known], n=1)   # as fusion.config says a typo
+            raise VisionError(f"{source}: [vision] {key} is not a known key ("
+                              + (f"did you mean {close[0]}? " if close else "")
+                              + f"known: preset, {', '.join(sorted(known))})")
         default = getattr(EstimatorOptions(), key)
         if isinstance(default, bool):
             if not isinstance(value, bool):

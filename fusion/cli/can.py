@@ -17,7 +17,7 @@ from pathlib import Path
 from imu import read_log
 from imu.samples import never_seen
 
-from ..config import Table, parse_can, parse_imu, read_toml
+from ..config import parse_tables, read_toml
 from ..errors import ConfigError, InputError
 from . import check_output_file, refuse_inputs_as_outputs, settle_heap, write_table
 
@@ -43,14 +43,14 @@ def add_parser(sub) -> None:
 
 
 def load_can_config(path: str | Path):
-    """``[imu]`` and ``[can]`` of a config file (the other tables are not needed here)."""
+    """``[imu]`` and ``[can]`` of a config file; its other tables are not needed here (nor
+    ``[camera]`` and ``[mount]`` required), but checked as every command checks them."""
     path = Path(path)
     data = read_toml(path)
     if "can" not in data:
         raise ConfigError(f"{path}: [can] is missing (vifusion can needs [can] dbc and [can.signals])")
-    mount = parse_imu(Table(data.get("imu", {}), "imu", str(path)))
-    mapping = parse_can(Table(data["can"], "can", str(path)), path.parent)
-    return mount, mapping
+    tables = parse_tables(data, str(path), path.parent, required=())
+    return tables["imu"], tables["can"]
 
 
 def run(args: argparse.Namespace) -> int:
