@@ -17,8 +17,8 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "configs" / "scenarios" / "test" / "tiny_banked_curve.toml"
 
 
-def vifusion(*args):
-    return subprocess.run([sys.executable, "-m", "fusion", *map(str, args)], capture_output=True, text=True)
+def vifusion(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "fusion", *map(str, args)], capture_output=True, text=True, cwd=cwd)
 
 
 @pytest.fixture(scope="module")
@@ -83,6 +83,8 @@ def test_run_writes_the_contract_outputs(drive, tmp_path):
     assert all(k.isidentifier() and k == k.lower() for k in counts), list(counts)
     # the input files named, and the smoothed or forward estimate said
     assert summary["inputs"]["video"] == str(drive / "video.mp4") and summary["smoothed"] is False
+    # the DBC the decode used, the config's [can] dbc (it was null without --dbc, a review)
+    assert summary["inputs"]["dbc"] == str(drive / "vifusion_imu.dbc")
     assert (out / "calibration.toml").is_file()
     html = (out / "report" / "report.html").read_text()
     assert "data:image/png;base64" in html
@@ -301,15 +303,22 @@ def test_truth_of_world_angles_only_is_scored(tmp_path):
     truth = pd.read_csv(copy / "truth.csv")[["t_s", "roll_world_deg", "pitch_world_deg"]]
     truth.to_csv(tmp_path / "ins.csv", index=False, float_format="%.12g")
     out = tmp_path / "out"
-    r = vifusion("run", "--video", copy / "video.mp4", "--frames", copy / "frames.csv", "--can", next(copy.glob("can.*")),
-                 "--config", copy / "config.toml", "--truth", tmp_path / "ins.csv", "--out", out, "--quiet")
+    # (the files named relative to the folder the run starts in: summary.json gives them absolute)
+    r = vifusion("run", "--video", "drive/video.mp4", "--frames", "drive/frames.csv", "--can",
+                 next(copy.glob("can.*")).relative_to(tmp_path), "--config", "drive/config.toml",
+                 "--truth", "ins.csv", "--out", "out", "--quiet", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     summary = json.loads((out / "report" / "summary.json").read_text())
     ref = json.loads((full / "report" / "summary.json").read_text())
     fused = summary["rmse_deg"]["fused"]
-    assert set(fused) == {"roll_world", "pitch_world"} and summary["consistency"] is None
+    # every angle's key, null where the truth has none (they were left out, a review)
+    assert {a for a, v in fused.items() if v is not None} == {"roll_world", "pitch_world"}
+    assert set(fused) == set(ref["rmse_deg"]["fused"]) and fused["bank"] is None and summary["consistency"] is None
     for a in ("roll_world", "pitch_world"):
         assert fused[a] == pytest.approx(ref["rmse_deg"]["fused"][a], abs=1e-6)
+    assert summary["inputs"] == {"video": str(copy / "video.mp4"), "frames": str(copy / "frames.csv"),
+                                 "can_log": str(next(copy.glob("can.*"))), "dbc": str(copy / "vifusion_imu.dbc"),
+                                 "config": str(copy / "config.toml"), "truth": str(tmp_path / "ins.csv")}
 
 
 def test_video_shorter_than_frames_csv_is_a_warning(copy, tmp_path):

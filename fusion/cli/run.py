@@ -263,10 +263,12 @@ def _run(args: argparse.Namespace) -> int:
         imu_truth=imu_truth, cov=fused.cov, counts={**fused.counts, **_can_counts(summary.as_dict())},
         timings_s=timings, time_offset=time_offset, warnings=warnings, smoothed=smooth,
         title=f"vifusion run: {files.video.parent.name}/{files.video.name}", camera_time_offset_s=offset_s,
-        inputs={k: None if v is None else str(v) for k, v in (("video", files.video), ("frames", files.frames),
-                ("can_log", files.can_log), ("dbc", files.dbc), ("config", files.config), ("truth", files.truth))},
-        imu_calibration=calibration,
-        calibration_from=None if args.calibration is None else str(args.calibration)), tmp / "report",
+        # the files used, as absolute paths (a relative one means nothing away from where the run
+        # was started), the DBC the decode used: --dbc's or the config's [can] dbc (null had said
+        # none where the config gave it, a review)
+        inputs={k: _absolute(v) for k, v in (("video", files.video), ("frames", files.frames),
+                ("can_log", files.can_log), ("dbc", mapping.dbc_path), ("config", files.config), ("truth", files.truth))},
+        imu_calibration=calibration, calibration_from=_absolute(args.calibration)), tmp / "report",
         plots=not args.no_report)
     timings["report"] = time.perf_counter() - t0
 
@@ -278,6 +280,11 @@ def _run(args: argparse.Namespace) -> int:
     _print_summary(out, files, frames, imu, timings, warnings, summary_out, time_offset, time.perf_counter() - t_start,
                    getattr(args, "warning_prefix", ""), args.debug_video)
     return 0
+
+
+def _absolute(path: Path | None) -> str | None:
+    """An input's path for summary.json: absolute, links resolved."""
+    return None if path is None else str(Path(path).resolve())
 
 
 def _can_problems(summary, log) -> list[str]:
