@@ -161,3 +161,24 @@ def test_a_binary_dbc_is_one_printable_line(tmp_path, drive, capsys):
                       "--dbc", str(garbage), "--quiet"], capsys)
     assert "garbage.dbc:1: DBC syntax error at column 1 near '\\x00\\x01\\x02" in msg, msg
     assert msg.isprintable(), repr(msg)
+
+
+def test_quiet_and_debug_before_or_after_the_command(tmp_path, drive, capsys):
+    """``--quiet`` is taken before the command's name as ``--debug`` is (``vifusion --quiet can
+    ...`` had been "unrecognized arguments", exit 2, a review), by every command, and either
+    flag given on one side is not undone by the other side's default."""
+    from fusion.cli import SUBCOMMANDS, build_parser
+
+    _, _, log = drive
+    out = tmp_path / "imu.csv"
+    assert main(["--quiet", "can", str(log), "--config", str(_config(tmp_path)), "--out", str(out)]) == 0
+    assert out.is_file() and "error" not in capsys.readouterr().err
+    rest = {"run": [], "campaign": ["d", "--out", "o"], "vision": ["--video", "v", "--config", "c", "--out", "o"],
+            "can": ["log", "--config", "c", "--out", "o"], "simulate": ["s", "--out", "o"]}
+    assert set(rest) == set(SUBCOMMANDS)
+    for command, args in rest.items():
+        for before, after, quiet, debug in (([], [], False, False), (["--quiet"], [], True, False),
+                                            ([], ["--quiet"], True, False), (["--debug"], ["--quiet"], True, True),
+                                            (["--quiet", "--debug"], [], True, True)):
+            got = build_parser().parse_args([*before, command, *args, *after])
+            assert (got.quiet, got.debug) == (quiet, debug), (before, command, after)

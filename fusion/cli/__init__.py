@@ -75,6 +75,9 @@ _WATCH = None
 #: Subcommands, in the order ``vifusion --help`` lists them.
 SUBCOMMANDS = ("run", "campaign", "vision", "can", "simulate")
 
+#: Flags that every command takes, before or after its name: (flag, help).
+COMMON_FLAGS = (("--debug", "show tracebacks"), ("--quiet", "no progress bars"))
+
 #: Exceptions that mean bad input rather than a bug: reported in one line, exit status 2. Every
 #: operating-system refusal is the user's to fix (a path, a full disk, a read-only file
 #: system, a name too long), not only missing files.
@@ -94,14 +97,18 @@ def build_parser() -> argparse.ArgumentParser:
         prog="vifusion",
         description="Vehicle attitude and road bank angle from a camera fused with a CAN-bus IMU.",
     )
-    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    for flag, text in COMMON_FLAGS:
+        parser.add_argument(flag, action="store_true", help=text)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in SUBCOMMANDS:
         importlib.import_module(f".{name}", __name__).add_parser(sub)
     for p in sub.choices.values():      # 'vifusion COMMAND --debug' as well as 'vifusion --debug COMMAND'
-        if "--debug" not in p._option_string_actions:
-            p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
+        for flag, text in COMMON_FLAGS:
+            action = p._option_string_actions.get(flag) or p.add_argument(flag, action="store_true", help=text)
+            # no default of the command's own: it would overwrite the flag given before the command
+            # ('vifusion --quiet can ...' had been "unrecognized arguments", a review)
+            action.default = argparse.SUPPRESS
     return parser
 
 
