@@ -121,3 +121,22 @@ def test_scalar_fast_paths_match_vectorised(roll, pitch, yaw, w):
     R = F.R_from_rpy(roll, pitch, yaw)
     np.testing.assert_allclose(F.rpy_from_R_scalar(R), F.rpy_from_R(R), atol=1e-12)
     np.testing.assert_allclose(F.so3_exp_scalar(*w), F.so3_exp(np.array(w)), atol=1e-14)
+
+
+def test_fusion_frames_is_the_same_module_of_conventions():
+    """``vision/frames.py`` says ``fusion`` re-exports it as ``fusion.frames``; ``import
+    fusion.frames`` was a ModuleNotFoundError (only the attribute of ``fusion`` existed, a
+    review). Every name is the very object of ``vision.frames``, by either way of reaching it."""
+    import subprocess
+    import sys
+
+    import fusion
+    import fusion.frames
+    from fusion.frames import R_from_rpy
+
+    assert fusion.frames.__all__ == F.__all__ and R_from_rpy is F.R_from_rpy and fusion.frames is fusion.__getattr__("frames")
+    for name in F.__all__:
+        assert getattr(fusion.frames, name) is getattr(F, name), name
+    # a fresh interpreter: the attribute before any import of the submodule
+    code = "import fusion; import vision.frames as F; assert fusion.frames.Rx is F.Rx"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
