@@ -602,3 +602,41 @@ def test_a_frame_left_out_of_frames_csv_is_said(drive, tmp_path, capsys):
                      str(root / "config.toml"), "--out", str(tmp_path / "v.csv"), "--quiet"]) == 0
         err = capsys.readouterr().err
         assert (said in err) if said else ("skip" not in err), err
+
+
+def test_the_debug_strip_tells_the_can_clock_with_the_configured_offset(tmp_path, monkeypatch):
+    """The debug video's strip says each frame's time on the CAN clock where the fusion places
+    it, ``frames.csv``'s time plus ``[fusion] camera_time_offset_s``, and the camera's own under
+    it: with an offset of 0.2 s it said 4.000 where the fusion had the frame at 4.200 (a review).
+    Through ``vifusion run`` and ``vifusion vision`` alike; without an offset, the strip of three
+    lines as before."""
+    from fusion.cli import main as cli_main
+    from fusion.drive import SAMPLE_DRIVE
+    from vision import debug
+    from vision.estimator import VisionEstimate
+
+    est = VisionEstimate.invalid("test")
+    assert debug.strip_text(est, 1004.0, 1000.0, 0.2) == [
+        "invalid: test", "t 4.000 s (CAN clock 1004.200)", "camera clock 1004.000 (-0.200 s from the CAN clock)"]
+    assert debug.strip_text(est, 1004.0, 1000.0) == ["invalid: test", "t 4.000 s (CAN clock 1004.000)"]
+
+    told = []
+    real = debug.strip_text
+    monkeypatch.setattr(debug, "strip_text", lambda *a: told.append(a[1:]) or real(*a))
+    frames = pd.read_csv(SAMPLE_DRIVE / "frames.csv").iloc[:3]
+    frames.to_csv(tmp_path / "frames.csv", index=False, float_format="%.9f")
+    cfg = tmp_path / "config.toml"
+    cfg.write_text((SAMPLE_DRIVE / "config.toml").read_text().replace("[fusion]", "[fusion]\ncamera_time_offset_s = 0.2"))
+    shutil.copy(SAMPLE_DRIVE / "vifusion_imu.dbc", tmp_path)
+    common = ["--video", str(SAMPLE_DRIVE / "video.mp4"), "--frames", str(tmp_path / "frames.csv"),
+              "--config", str(cfg), "--quiet"]
+    assert cli_main(["vision", *common, "--out", str(tmp_path / "v.csv"), "--debug-video", str(tmp_path / "v.mp4")]) == 0
+    assert cli_main(["run", *common, "--can", str(SAMPLE_DRIVE / "can.blf"), "--out", str(tmp_path / "run"),
+                     "--no-report", "--debug-video", str(tmp_path / "r.mp4")]) == 0
+    want = [(t, frames["t_s"].iloc[0], 0.2) for t in frames["t_s"]]
+    assert [told[:3], told[3:]] == [want, want], told
+    for name in ("v.mp4", "r.mp4"):   # the strip has room for the fourth line (19 px a line at 360 rows)
+        cap = cv2.VideoCapture(str(tmp_path / name))
+        h = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        cap.release()
+        assert h == 360 + 4 * 19 + 8, (name, h)

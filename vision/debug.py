@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -24,7 +25,7 @@ from .camera import Camera
 from .errors import VisionError
 from .estimator import VisionEstimate
 
-__all__ = ["DebugWriter", "render_debug"]
+__all__ = ["DebugVideo", "DebugWriter", "render_debug", "strip_text"]
 
 GREEN, RED, BLUE, YELLOW, MAGENTA, CYAN, WHITE = ((0, 200, 0), (0, 0, 230), (230, 120, 0), (0, 220, 220),
                                                   (220, 0, 220), (230, 230, 0), (255, 255, 255))
@@ -34,12 +35,48 @@ def _pts(uv: np.ndarray) -> np.ndarray:
     return np.round(uv).astype(np.int32).reshape(-1, 1, 2)
 
 
+@dataclass(frozen=True)
+class DebugVideo(os.PathLike):
+    """Where to write a debug video, and the clock its strip tells: ``clock_offset_s``, the
+    config's ``[fusion] camera_time_offset_s``, added to a frame's time (its camera's, as
+    ``frames.csv`` gives it) gives its time on the CAN clock, where the fusion places it. A path
+    itself (``os.fspath``), it goes wherever the video's path goes (:func:`vision.video.estimate_video`)."""
+
+    path: Path
+    clock_offset_s: float = 0.0
+
+    def __fspath__(self) -> str:
+        return os.fspath(self.path)
+
+
+def strip_text(est: VisionEstimate, t_s: float | None = None, t0_s: float | None = None,
+               clock_offset_s: float = 0.0) -> list[str]:
+    """The lines of a frame's strip: its angles and 1-sigma (or why it is invalid), then its time
+    since ``t0_s`` (the video's first frame) with the CAN clock's after it, ``t_s +
+    clock_offset_s`` (the clock alone, a Unix time of ten digits, was hard to read against the
+    plots, a review); with an offset, the camera's own ``t_s`` under it (the strip had said the
+    camera's time as the CAN clock's: 4.000 where the fusion put the frame at 4.200, a review)."""
+    lines = []
+    if est.valid:
+        lines.append("roll %+6.2f  pitch %+5.2f  yaw %+5.2f deg" % tuple(math.degrees(x) for x in est.rpy_rad))
+        lines.append("1-sigma %.2f %.2f %.2f deg  %s  %d lines" % (
+            math.degrees(est.roll_sigma_rad), math.degrees(est.pitch_sigma_rad), math.degrees(est.yaw_sigma_rad),
+            est.roll_equation, est.n_lines))
+    else:
+        lines.append("invalid: " + (est.reason or "?")[:70])
+    if t_s is not None:
+        can_s = t_s + clock_offset_s
+        lines.append(f"t {t_s - t0_s:.3f} s (CAN clock {can_s:.3f})" if t0_s is not None else f"t {can_s:.3f} s")
+        if clock_offset_s:
+            lines.append(f"camera clock {t_s:.3f} ({-clock_offset_s:+.3f} s from the CAN clock)")
+    return lines
+
+
 def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: float | None = None,
-                 t0_s: float | None = None) -> np.ndarray:
+                 t0_s: float | None = None, clock_offset_s: float = 0.0) -> np.ndarray:
     """The debug picture of one frame (uint8 BGR): the frame and the BEV panel (half its width)
-    side by side, the estimate's text in a strip under them; the time since ``t0_s`` (the
-    video's first frame) with the CAN clock's ``t_s`` after it (the clock alone, a Unix time of
-    ten digits, was hard to read against the plots, a review)."""
+    side by side, the estimate's text (:func:`strip_text`; ``t_s`` on the camera's clock,
+    ``clock_offset_s`` added to it gives the CAN clock's) in a strip under them."""
     frame = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     frame = np.ascontiguousarray(frame[..., :3]).copy()
     if frame.dtype != np.uint8:
@@ -133,23 +170,14 @@ def render_debug(image: np.ndarray, est: VisionEstimate, camera: Camera, t_s: fl
                 good = np.all(np.isfinite(uv), 1) & (np.abs(uv).max(1) < 1e5)
                 if good.sum() > 1:
                     cv2.polylines(frame, [_pts(uv[good])], False, CYAN, 1, cv2.LINE_AA)
-    lines = []
-    if est.valid:
-        lines.append("roll %+6.2f  pitch %+5.2f  yaw %+5.2f deg" % tuple(math.degrees(x) for x in est.rpy_rad))
-        lines.append("1-sigma %.2f %.2f %.2f deg  %s  %d lines" % (
-            math.degrees(est.roll_sigma_rad), math.degrees(est.pitch_sigma_rad), math.degrees(est.yaw_sigma_rad),
-            est.roll_equation, est.n_lines))
-    else:
-        lines.append("invalid: " + (est.reason or "?")[:70])
-    if t_s is not None:
-        lines.append(f"t {t_s - t0_s:.3f} s (CAN clock {t_s:.3f})" if t0_s is not None else f"t {t_s:.3f} s")
+    lines = strip_text(est, t_s, t0_s, clock_offset_s)
     scale = max(0.5, H / 900.0)
     step = int(round(30 * scale)) + 4
-    # the text in a strip under the pictures, of three lines whatever the frame says (one size
-    # for the whole video): drawn over the frame, its box hid the vanishing point and most of
-    # the horizon of a 320x180 frame (a review)
+    # the text in a strip under the pictures, of three lines whatever the frame says (four with a
+    # clock offset: one size for the whole video): drawn over the frame, its box hid the
+    # vanishing point and most of the horizon of a 320x180 frame (a review)
     pictures = np.concatenate([frame, bev_panel], axis=1)
-    strip = np.zeros((step * 3 + 8, pictures.shape[1], 3), dtype=pictures.dtype)
+    strip = np.zeros((step * (4 if clock_offset_s else 3) + 8, pictures.shape[1], 3), dtype=pictures.dtype)
     for i, text in enumerate(lines):
         cv2.putText(strip, text, (8, step * (i + 1)), cv2.FONT_HERSHEY_SIMPLEX, scale, WHITE, 1, cv2.LINE_AA)
     return np.concatenate([pictures, strip], axis=0)
@@ -175,7 +203,9 @@ class DebugWriter:
     #: The containers it writes: mp4v for ``.mp4 .mov .mkv``, MJPG for ``.avi``.
     SUFFIXES = (".mp4", ".mov", ".mkv", ".avi")
 
-    def __init__(self, path: str | os.PathLike, fps: float, camera: Camera) -> None:
+    def __init__(self, path: str | os.PathLike | DebugVideo, fps: float, camera: Camera) -> None:
+        #: added to a frame's time for the CAN clock's in the strip (:class:`DebugVideo`)
+        self.clock_offset_s = path.clock_offset_s if isinstance(path, DebugVideo) else 0.0
         self.path = self.check(path)
         self.tmp = self.path.with_name(self.path.stem + ".partial" + self.path.suffix)
         self.fps, self.camera = float(fps), camera
@@ -197,7 +227,7 @@ class DebugWriter:
     def write(self, image: np.ndarray, est: VisionEstimate, t_s: float | None = None) -> None:
         if self.t0_s is None and t_s is not None:
             self.t0_s = t_s
-        pic = render_debug(image, est, self.camera, t_s, self.t0_s)
+        pic = render_debug(image, est, self.camera, t_s, self.t0_s, self.clock_offset_s)
         if pic.shape[0] % 2 or pic.shape[1] % 2:   # the codecs take even sizes (an odd row was cut)
             pic = cv2.copyMakeBorder(pic, 0, pic.shape[0] % 2, 0, pic.shape[1] % 2, cv2.BORDER_CONSTANT)
         if self.writer is None:

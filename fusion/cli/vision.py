@@ -47,12 +47,14 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
+    from vision.debug import DebugVideo
     from vision.options import options_from_table
     from vision.video import count_frames, default_workers, estimate_video
 
     from ..config import load_config
     from ..drive import frames_warnings, read_frame_times, vision_warnings
     from ..errors import InputError
+    from ..options import fusion_options_from_table
     from . import settle_heap
 
     settle_heap()
@@ -64,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     refuse_inputs_as_outputs([args.out, args.debug_video], [args.video, args.frames, args.config, args.can, args.dbc])
 
     cfg = load_config(args.config)
+    _, settings = fusion_options_from_table(cfg.extra.get("fusion"), str(args.config))
     table = dict(cfg.extra.get("vision") or {})
     if args.preset is not None:
         table["preset"] = args.preset
@@ -74,11 +77,13 @@ def run(args: argparse.Namespace) -> int:
     frames = read_frame_times(args.frames, cfg.video, None if args.frames else count_frames(args.video))
     warnings = frames_warnings(args.video, frames, args.frames, cfg.video.fps)
     if args.can is not None:
-        frames = frames.assign(speed_m_s=_wheel_speeds(args, cfg, frames["t_s"].to_numpy()))
+        frames = frames.assign(speed_m_s=_wheel_speeds(args, cfg, frames["t_s"].to_numpy(), settings.camera_time_offset_s))
     elif args.dbc is not None:
         raise InputError("--dbc needs --can (the CAN log it decodes)")
+    # the strip's CAN clock is the frames' plus the configured offset, where the fusion puts them
+    debug_video = None if args.debug_video is None else DebugVideo(args.debug_video, settings.camera_time_offset_s)
     vision, stats = estimate_video(args.video, frames, cfg.camera, cfg.mount, cfg.road, options,
-                                   progress=not args.quiet, debug_video=args.debug_video,
+                                   progress=not args.quiet, debug_video=debug_video,
                                     workers=args.workers or default_workers())
     listed_by = "that frames.csv lists" if args.frames else "counted in the video"
     if not len(vision):
@@ -100,8 +105,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
-    """The wheel speed at each frame time (frames.csv's clock plus the config's
+def _wheel_speeds(args: argparse.Namespace, cfg, t_s, offset_s: float):
+    """The wheel speed at each frame time (frames.csv's clock plus ``offset_s``, the config's
     ``camera_time_offset_s``), decoded from ``--can`` as ``vifusion run`` does
     (:func:`fusion.drive.frame_speeds`)."""
     import numpy as np
@@ -110,7 +115,6 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
 
     from ..drive import SPEED_SPAN_WARN_S, check_overlap, frame_speeds, frames_outside_warning
     from ..errors import ConfigError, InputError
-    from ..options import fusion_options_from_table
 
     for path in (args.can, args.dbc):
         if path is not None and not path.is_file():
@@ -118,9 +122,8 @@ def _wheel_speeds(args: argparse.Namespace, cfg, t_s):
     if cfg.can is None:
         raise ConfigError(f"{args.config}: [can] is missing (the CAN signals of the wheel speed)")
     mapping = cfg.can if args.dbc is None else type(cfg.can)(**{**cfg.can.__dict__, "dbc_path": args.dbc})
-    _, settings = fusion_options_from_table(cfg.extra.get("fusion"), str(args.config))
     imu, _ = read_log(args.can, mapping, cfg.imu, progress=not args.quiet)
-    t = np.asarray(t_s, dtype=float) + settings.camera_time_offset_s
+    t = np.asarray(t_s, dtype=float) + offset_s
     check_overlap(t, imu["t_s"].to_numpy(), str(args.frames or args.video), str(args.can))
     # as vifusion run says them (a truncated log had gone without a word here, a review)
     if not imu.attrs.get("complete", True):
