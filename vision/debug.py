@@ -15,7 +15,6 @@ from __future__ import annotations
 import functools
 import math
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -25,7 +24,7 @@ from .camera import Camera
 from .errors import VisionError
 from .estimator import VisionEstimate
 
-__all__ = ["DebugVideo", "DebugWriter", "render_debug", "strip_text"]
+__all__ = ["DebugWriter", "render_debug", "strip_text"]
 
 GREEN, RED, BLUE, YELLOW, MAGENTA, CYAN, WHITE = ((0, 200, 0), (0, 0, 230), (230, 120, 0), (0, 220, 220),
                                                   (220, 0, 220), (230, 230, 0), (255, 255, 255))
@@ -33,20 +32,6 @@ GREEN, RED, BLUE, YELLOW, MAGENTA, CYAN, WHITE = ((0, 200, 0), (0, 0, 230), (230
 
 def _pts(uv: np.ndarray) -> np.ndarray:
     return np.round(uv).astype(np.int32).reshape(-1, 1, 2)
-
-
-@dataclass(frozen=True)
-class DebugVideo(os.PathLike):
-    """Where to write a debug video, and the clock its strip tells: ``clock_offset_s``, the
-    config's ``[fusion] camera_time_offset_s``, added to a frame's time (its camera's, as
-    ``frames.csv`` gives it) gives its time on the CAN clock, where the fusion places it. A path
-    itself (``os.fspath``), it goes wherever the video's path goes (:func:`vision.video.estimate_video`)."""
-
-    path: Path
-    clock_offset_s: float = 0.0
-
-    def __fspath__(self) -> str:
-        return os.fspath(self.path)
 
 
 def strip_text(est: VisionEstimate, t_s: float | None = None, t0_s: float | None = None,
@@ -203,9 +188,9 @@ class DebugWriter:
     #: The containers it writes: mp4v for ``.mp4 .mov .mkv``, MJPG for ``.avi``.
     SUFFIXES = (".mp4", ".mov", ".mkv", ".avi")
 
-    def __init__(self, path: str | os.PathLike | DebugVideo, fps: float, camera: Camera) -> None:
-        #: added to a frame's time for the CAN clock's in the strip (:class:`DebugVideo`)
-        self.clock_offset_s = path.clock_offset_s if isinstance(path, DebugVideo) else 0.0
+    def __init__(self, path: str | os.PathLike, fps: float, camera: Camera, clock_offset_s: float = 0.0) -> None:
+        #: added to a frame's time for the CAN clock's in the strip (the config's camera_time_offset_s)
+        self.clock_offset_s = float(clock_offset_s)
         self.path = self.check(path)
         self.tmp = self.path.with_name(self.path.stem + ".partial" + self.path.suffix)
         self.fps, self.camera = float(fps), camera

@@ -293,7 +293,7 @@ def default_workers() -> int:
 def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Mount, road: RoadMarkings,
                    options: EstimatorOptions = EstimatorOptions(), *, progress: bool = True,
                    debug_video: str | os.PathLike | None = None, debug_fps: float | None = None,
-                   workers: int = 1, while_waiting: Callable[[], object] | None = None, pieces: int | None = None):
+                   debug_clock_offset_s: float = 0.0, workers: int = 1, while_waiting: Callable[[], object] | None = None, pieces: int | None = None):
     """Run the estimator over a video.
 
     Parameters
@@ -313,6 +313,9 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
     debug_video : path, optional
         Also write the debug video (:mod:`vision.debug`) there. It is written in frame order by
         one process: with a debug video the run uses one worker (``stats["workers"]`` says so).
+    debug_clock_offset_s : float
+        Added to a frame's time for the CAN clock's in the debug video's strip (the config's
+        ``[fusion] camera_time_offset_s``: where the fusion places the frame).
     workers : int
         Processes that share the pieces of the video (:func:`piece_count`: cut by the video's
         length alone, so that the table does not depend on how many processes there are).
@@ -367,7 +370,7 @@ def estimate_video(video: str | os.PathLike, frames, camera: Camera, mount: Moun
         if workers == 1:
             if while_waiting is not None:
                 while_waiting()
-            rows, n_read = _estimate_pieces_here(jobs, bar.update, debug_video, debug_fps or fps)
+            rows, n_read = _estimate_pieces_here(jobs, bar.update, debug_video, debug_fps or fps, debug_clock_offset_s)
         else:
             rows, n_read = _estimate_parallel(jobs, len(wanted), workers, bar.update, while_waiting)
     finally:
@@ -750,12 +753,13 @@ def _run_job(job: _PieceJob, writer=None, tick=None) -> tuple[list[dict], int]:
 
 
 def _estimate_pieces_here(jobs: list[_PieceJob], tick, debug_video=None,
-                          debug_fps: float = 30.0) -> tuple[list[dict], int]:
+                          debug_fps: float = 30.0, debug_clock_offset_s: float = 0.0) -> tuple[list[dict], int]:
     """The pieces one after the other in this process (each from its own warm-up, as a worker
     would: the same rows), the debug video written across them in frame order."""
     from .debug import DebugWriter
 
-    writer = DebugWriter(debug_video, debug_fps, jobs[0].setup[0]) if debug_video is not None and jobs else None
+    writer = (DebugWriter(debug_video, debug_fps, jobs[0].setup[0], debug_clock_offset_s)
+              if debug_video is not None and jobs else None)
     rows, n_read = [], 0
     try:
         for job in jobs:

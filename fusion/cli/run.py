@@ -94,7 +94,6 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from imu import CHANNELS, VALUE_COLUMNS, read_log
     from imu.samples import never_seen
-    from vision.debug import DebugVideo
     from vision.options import options_from_table
     from vision.video import default_workers, estimate_video, start_numba
 
@@ -203,11 +202,11 @@ def _run(args: argparse.Namespace) -> int:
         from .. import report  # noqa: F401
 
     t0 = time.perf_counter()
-    # the debug video's strip: the CAN clock as the fusion has it, the configured offset applied
-    # (an estimated one comes after the video: --estimate-time-offset)
-    debug_video = None if args.debug_video is None else DebugVideo(args.debug_video, offset_s)
     vision, vstats = estimate_video(files.video, frames, cfg.camera, cfg.mount, cfg.road, vision_opts,
-                                    progress=progress, debug_video=debug_video,
+                                    progress=progress, debug_video=args.debug_video,
+                                    # the strip's CAN clock as the fusion has it (an estimated offset
+                                    # comes after the video: --estimate-time-offset)
+                                    debug_clock_offset_s=offset_s,
                                     workers=args.workers or default_workers(), while_waiting=imu_only_run)
     timings["vision"] = time.perf_counter() - t0
     if args.debug_video is not None and not len(vision):

@@ -47,7 +47,6 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from vision.debug import DebugVideo
     from vision.options import options_from_table
     from vision.video import count_frames, default_workers, estimate_video
 
@@ -80,10 +79,9 @@ def run(args: argparse.Namespace) -> int:
         frames = frames.assign(speed_m_s=_wheel_speeds(args, cfg, frames["t_s"].to_numpy(), settings.camera_time_offset_s))
     elif args.dbc is not None:
         raise InputError("--dbc needs --can (the CAN log it decodes)")
-    # the strip's CAN clock is the frames' plus the configured offset, where the fusion puts them
-    debug_video = None if args.debug_video is None else DebugVideo(args.debug_video, settings.camera_time_offset_s)
     vision, stats = estimate_video(args.video, frames, cfg.camera, cfg.mount, cfg.road, options,
-                                   progress=not args.quiet, debug_video=debug_video,
+                                   progress=not args.quiet, debug_video=args.debug_video,
+                                   debug_clock_offset_s=settings.camera_time_offset_s,
                                     workers=args.workers or default_workers())
     listed_by = "that frames.csv lists" if args.frames else "counted in the video"
     if not len(vision):
