@@ -387,10 +387,12 @@ def frames_warnings(video: Path, frames: pd.DataFrame, frames_csv: Path | None, 
     from vision.video import FrameSource
 
     container = video_container(video)
-    try:
-        src = FrameSource(video, None if frames_csv is None else frames["frame"])
-    except VisionError:   # the vision's own reading says what is wrong
-        src = None
+    src = None
+    if Path(video).is_dir():      # (a video's FrameSource would open the container again for nothing)
+        try:
+            src = FrameSource(video, None if frames_csv is None else frames["frame"])
+        except VisionError:   # the vision's own reading says what is wrong
+            pass
     if frames_csv is None:
         said = (video_cut_warning(video, len(frames), container),
                 video_rate_warning(video, len(frames), fps, container))

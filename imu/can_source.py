@@ -281,7 +281,8 @@ class StreamDecoder:
                 lock = self._chan_lock[aid] = _ChannelLock(msg.channel)
             if lock.channel == msg.channel:
                 lock.taken += 1
-                lock.run_frames = 0
+                if not msg.is_remote_frame:     # (a request is no sign that the channel carries it)
+                    lock.run_frames = 0
             elif not self._relock(aid, lock, msg):
                 counts["other_channel"] = counts.get("other_channel", 0) + 1
                 self._judge_other_channel(aid, lock, counts["other_channel"])
@@ -329,6 +330,8 @@ class StreamDecoder:
         channel: that channel has carried it for longer than ``gap_limit_s`` by its own stamps,
         in :data:`RELOCK_MIN_FRAMES` frames or more, with none on the channel taken."""
         t = msg.timestamp
+        if msg.is_remote_frame or not (isinstance(t, (int, float)) and math.isfinite(t)):
+            return False      # no data, or no time to measure the run by (a NaN had held it for good)
         if not (lock.run_frames and lock.run_channel == msg.channel):
             lock.run_channel, lock.run_first_t, lock.run_frames = msg.channel, t, 1
             return False
