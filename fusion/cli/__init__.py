@@ -26,6 +26,23 @@ def _interrupted_while_loading() -> None:
     os._exit(130)
 
 
+def _note_interrupt_while_loading(signum, frame):
+    """SIGINT while the modules load: noted, then raised as Python's own handler does. A
+    library can lose the KeyboardInterrupt (raised inside a finalizer it is only printed as
+    'Exception ignored'; C code can clear it): `test_ctrl_c_while_the_command_loads_is_one_line`
+    once saw the interrupt at numpy's import have no effect, the run going on to exit 0."""
+    _LOADING_INTERRUPTED.append(signum)
+    raise KeyboardInterrupt
+
+
+_LOADING_INTERRUPTED: list[int] = []
+import signal  # noqa: E402  (built in: no time)
+import threading  # noqa: E402
+
+_NOTE_LOADING = (threading.current_thread() is threading.main_thread()
+                 and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+if _NOTE_LOADING:
+    signal.signal(signal.SIGINT, _note_interrupt_while_loading)
 try:   # numpy loads here (0.15 s): an interrupt during the imports is said as any other (main's)
     import argparse
     import errno
@@ -44,6 +61,10 @@ try:   # numpy loads here (0.15 s): an interrupt during the imports is said as a
     from ..errors import FusionError
     from ..files import write_atomically
 except KeyboardInterrupt:
+    _interrupted_while_loading()
+if _NOTE_LOADING:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+if _LOADING_INTERRUPTED:      # lost inside a library's import: said all the same
     _interrupted_while_loading()
 
 
