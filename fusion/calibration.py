@@ -62,8 +62,7 @@ _SAME_POSITION_M = 1e-3
 def pitch_gyro_prior_deg_s(noise: NoiseModel) -> tuple[float, float]:
     """The y gyro bias a run without a pitch gyro hands on: the prior it started from (mean and
     1-sigma, deg/s): it measured nothing of it."""
-    sigma = np.broadcast_to(np.asarray(noise.init_gyro_bias_rad_s, dtype=float), (3,))[1]
-    return math.degrees(noise.gyro_bias_prior_rad_s[1]), math.degrees(float(sigma))
+    return math.degrees(noise.gyro_bias_prior_rad_s[1]), math.degrees(float(noise.init_gyro_bias_sigma_rad_s[1]))
 
 
 def calibration_table(fused: pd.DataFrame, pitch_gyro_prior: tuple[float, float] | None = None) -> dict[str, list[float]]:

@@ -227,6 +227,11 @@ class NoiseModel:
         ``curvature_sigma_floor_1_m + curvature_sigma_floor_rel |curvature|``."""
         return _float_if_scalar(_curvature_sigma_v(curvature_1_m, sigma_1_m, *self._vision_sigma_params()[3:6]))
 
+    @property
+    def init_gyro_bias_sigma_rad_s(self) -> np.ndarray:
+        """``init_gyro_bias_rad_s`` per axis (x, y, z; one value is every axis's), rad/s."""
+        return np.broadcast_to(np.asarray(self.init_gyro_bias_rad_s, dtype=float), (3,))
+
     def _vision_sigma_params(self) -> np.ndarray:
         """The parameters of the three sigmas above, in the order the compiled updates take them
         (:func:`_vision_sigma`, :func:`_curvature_sigma`, :func:`_twist_sigma`)."""

@@ -310,13 +310,17 @@ def start_warnings(t_s: np.ndarray, gyro_rad_s: np.ndarray, options: FusionOptio
         return []
     first = t_s - t_s[0] < START_SPAN_S
     turn = math.degrees(float(np.mean(np.abs(gyro_rad_s[first, 2]))))
-    prior = math.degrees(float(np.broadcast_to(np.asarray(options.noise.init_gyro_bias_rad_s, dtype=float), (3,))[2]))
+    prior = math.degrees(float(options.noise.init_gyro_bias_sigma_rad_s[2]))
     if turn <= START_TURN_DEG_S or prior <= CALIBRATED_BIAS_DEG_S:       # (the yaw-rate gyro's prior)
         return []
     return [f"the drive starts in a turn ({turn:.1f} deg/s of yaw rate over its first {START_SPAN_S:g} s) with "
             f"uncalibrated gyro biases (prior {prior:.2g} deg/s): in a turn the yaw-rate bias and the world roll trade, "
             "and the world roll and bank can be tenths of a degree off for 15 s or more; start it from a calibration "
             "(--calibration: a campaign's, or a drive with a straight) or on a straight"]
+
+
+#: The counts :func:`glitch_warnings` speaks of (``LiveFusion`` says each once as it comes).
+GLITCH_COUNTS = ("gravity_reacquired", "level_skipped", "speed_implausible", "twist_implausible")
 
 
 def glitch_warnings(counts: dict, reacquire_after_s: float) -> list[str]:

@@ -51,7 +51,7 @@ from .drive import last_speed
 from .engine import Estimate, FusionStream
 from .errors import ConfigError
 from .options import fusion_options_from_table
-from .pipeline import glitch_warnings, implausible_vision_warning, vision_refused_warning
+from .pipeline import GLITCH_COUNTS, glitch_warnings, implausible_vision_warning, vision_refused_warning
 
 __all__ = ["LiveFusion"]
 
@@ -391,7 +391,7 @@ class LiveFusion:
         refused as a sensor's fault, implausible road twists: counted in ``stream.counts``, said
         only offline before, a review)."""
         c = self.stream.counts
-        for key in ("gravity_reacquired", "level_skipped", "speed_implausible", "twist_implausible"):
+        for key in GLITCH_COUNTS:
             if c[key] and key not in self._glitches_said:
                 self._glitches_said.add(key)
                 line = glitch_warnings({key: c[key]}, self.stream.options.gravity_reacquire_after_s)[0]

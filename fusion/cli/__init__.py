@@ -50,8 +50,6 @@ try:   # numpy loads here (0.15 s): an interrupt during the imports is said as a
     import importlib
     import os
     import re
-    import signal
-    import threading
     import time
     from pathlib import Path
 
